@@ -1,0 +1,73 @@
+"""Rigid transforms as 4x4 homogeneous matrices.
+
+Convention: ``T_a_b`` is the pose of frame ``b`` in frame ``a``; it maps
+points in ``b`` to ``a`` (``p_a = T_a_b @ p_b``) and ``T_a_c = T_a_b @ T_b_c``.
+Lengths are metres, angles radians.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation and (3,) translation -> (4, 4) transform."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def invert(T_a_b: np.ndarray) -> np.ndarray:
+    """Inverse of a (4, 4) rigid transform: returns T_b_a."""
+    R = T_a_b[:3, :3]
+    return make_transform(R.T, -R.T @ T_a_b[:3, 3])
+
+
+def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
+    """Map (N, 3) points from frame b to frame a."""
+    return p_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+
+
+def rotation_angle(R: np.ndarray) -> float:
+    """Geodesic angle of a (3, 3) rotation, radians in [0, pi]."""
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.arccos(cos))
+
+
+def pose_error(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    """(translation error in m, geodesic rotation error in rad) between two poses."""
+    dt = float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
+    return dt, rotation_angle(T_est[:3, :3].T @ T_true[:3, :3])
+
+
+def transform_from_xyz_quat(xyz: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
+    """Translation (3,) and unit quaternion (w, x, y, z) -> (4, 4)."""
+    w, x, y, z = quat_wxyz
+    return make_transform(Rotation.from_quat([x, y, z, w]).as_matrix(), xyz)
+
+
+def xyz_quat_from_transform(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(4, 4) -> translation (3,) and quaternion (w, x, y, z) with w >= 0."""
+    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+    q = np.array([w, x, y, z])
+    return T[:3, 3].copy(), q if w >= 0 else -q
+
+
+def transform_from_xyz_rpy(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
+    """Translation (3,) and roll-pitch-yaw (3,) radians -> (4, 4).
+
+    R = Rz(yaw) @ Ry(pitch) @ Rx(roll), rotations about the fixed axes x, y, z.
+    """
+    return make_transform(Rotation.from_euler("xyz", rpy).as_matrix(), xyz)
+
+
+def rpy_from_transform(T: np.ndarray) -> np.ndarray:
+    """(4, 4) -> roll-pitch-yaw (3,) radians, inverse of transform_from_xyz_rpy."""
+    return Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
+
+
+def rotation_about(axis: str, angle: float) -> np.ndarray:
+    """(3, 3) rotation by ``angle`` radians about the local 'x', 'y' or 'z' axis."""
+    return Rotation.from_euler(axis, angle).as_matrix()

@@ -1,0 +1,130 @@
+"""UR arm kinematics from UR's published DH parameters, and a damped least-squares IK.
+
+The MJCF models in models/ place each link at its DH frame, so these
+functions and MuJoCo agree (tests/test_kinematics.py checks it).
+Frames: ``base`` is UR's base frame, ``flange`` is tool0 (DH frame 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+@dataclass(frozen=True)
+class URKinematics:
+    """Classic DH table (d, a, alpha per joint; metres, radians) and joint limits."""
+
+    name: str
+    d: tuple[float, ...]
+    a: tuple[float, ...]
+    alpha: tuple[float, ...]
+    q_lower: tuple[float, ...]
+    q_upper: tuple[float, ...]
+
+
+_HALF_PI = np.pi / 2
+_LIMITS = ((-2 * np.pi,) * 2 + (-np.pi,) + (-2 * np.pi,) * 3, (2 * np.pi,) * 2 + (np.pi,) + (2 * np.pi,) * 3)
+
+UR5 = URKinematics(
+    "ur5",
+    d=(0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823),
+    a=(0.0, -0.425, -0.39225, 0.0, 0.0, 0.0),
+    alpha=(_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
+    q_lower=_LIMITS[0],
+    q_upper=_LIMITS[1],
+)
+UR5E = URKinematics(
+    "ur5e",
+    d=(0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
+    a=(0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
+    alpha=(_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
+    q_lower=_LIMITS[0],
+    q_upper=_LIMITS[1],
+)
+ROBOTS = {k.name: k for k in (UR5, UR5E)}
+
+
+def dh_frames(kin: URKinematics, q: np.ndarray) -> np.ndarray:
+    """(7, 4, 4) poses T_base_i of DH frames 0..6 for joint angles q (6,)."""
+    frames = np.empty((7, 4, 4))
+    frames[0] = np.eye(4)
+    for i in range(6):
+        ct, st = np.cos(q[i]), np.sin(q[i])
+        ca, sa = np.cos(kin.alpha[i]), np.sin(kin.alpha[i])
+        step = np.array(
+            [
+                [ct, -st * ca, st * sa, kin.a[i] * ct],
+                [st, ct * ca, -ct * sa, kin.a[i] * st],
+                [0.0, sa, ca, kin.d[i]],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+        frames[i + 1] = frames[i] @ step
+    return frames
+
+
+def forward(kin: URKinematics, q: np.ndarray) -> np.ndarray:
+    """T_base_flange (4, 4) for joint angles q (6,), radians."""
+    return dh_frames(kin, q)[6]
+
+
+def jacobian(kin: URKinematics, q: np.ndarray) -> np.ndarray:
+    """(6, 6) geometric Jacobian of the flange: rows (v, omega) in the base frame."""
+    frames = dh_frames(kin, q)
+    p_flange = frames[6][:3, 3]
+    J = np.empty((6, 6))
+    for i in range(6):
+        z = frames[i][:3, 2]
+        J[:3, i] = np.cross(z, p_flange - frames[i][:3, 3])
+        J[3:, i] = z
+    return J
+
+
+@dataclass(frozen=True)
+class IKResult:
+    q: np.ndarray
+    converged: bool
+    position_error_m: float
+    rotation_error_rad: float
+    iterations: int
+
+
+def solve_ik(
+    kin: URKinematics,
+    T_base_flange: np.ndarray,
+    q_seed: np.ndarray,
+    damping: float = 1e-3,
+    max_step_rad: float = 0.3,
+    tol: float = 1e-10,
+    max_iterations: int = 300,
+) -> IKResult:
+    """Damped least squares from q_seed toward the target flange pose.
+
+    Joint angles are clamped to the limits after each step, so a target
+    reachable only outside them does not converge.
+    """
+    lower, upper = np.array(kin.q_lower), np.array(kin.q_upper)
+    q = np.clip(np.asarray(q_seed, dtype=float), lower, upper)
+    R_target, p_target = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    for iteration in range(max_iterations + 1):
+        T = forward(kin, q)
+        e_p = p_target - T[:3, 3]
+        e_r = Rotation.from_matrix(R_target @ T[:3, :3].T).as_rotvec()
+        if np.linalg.norm(e_p) < tol and np.linalg.norm(e_r) < tol:
+            break
+        if iteration == max_iterations:
+            break
+        J = jacobian(kin, q)
+        e = np.concatenate([e_p, e_r])
+        dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(6), e)
+        largest = np.max(np.abs(dq))
+        if largest > max_step_rad:
+            dq *= max_step_rad / largest
+        q = np.clip(q + dq, lower, upper)
+    pos_err, rot_err = float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r))
+    converged = pos_err < 1e-8 and rot_err < 1e-8
+    return IKResult(q, converged, pos_err, rot_err, iteration)
+

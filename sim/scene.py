@@ -1,0 +1,193 @@
+"""Build the MuJoCo cell: models/cell.xml, the arm, the camera on the flange and the board.
+
+The arm's MJCF is attached at the cell's ``arm_mount`` site. The camera body
+and the board are added here because their poses come from the scenario.
+
+MuJoCo camera <-> OpenCV K (checked in tests/test_render.py):
+MuJoCo's camera looks along its -z with +y up, so
+``T_flange_mjcam = T_flange_cam @ diag(1, -1, -1, 1)``. Its intrinsics are set
+from K with ``resolution = (W, H)``, ``focalpixel = (fx, fy)`` and
+``principalpixel = ((W - 1) / 2 - cx, (H - 1) / 2 - cy)``: MuJoCo measures the
+principal point as an offset from the image centre, with the sign that moves
+the image content, and OpenCV's pixel origin is the centre of the first pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from estimator.board import BoardDefinition, board_image
+from estimator.camera import CameraIntrinsics
+from estimator.geometry import invert, make_transform, xyz_quat_from_transform
+from sim.kinematics import ROBOTS, URKinematics
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+CAMERA_NAME = "hec_camera"
+BOARD_GEOM = "board_sheet"
+ARM_PREFIX = "arm/"
+# Rotation taking OpenCV's camera axes to MuJoCo's (x right, y up, looking along -z).
+R_CAM_MJCAM = np.diag([1.0, -1.0, -1.0])
+BOARD_TEXTURE_PX_PER_M = 4000.0
+# Robot and camera geoms collide with the cell (contype 1), not with each other.
+_ROBOT_CONTYPE = 1
+
+
+def models_dir() -> Path:
+    """The models/ folder, in a source checkout or an installed wheel."""
+    if MODELS_DIR.is_dir():
+        return MODELS_DIR
+    from importlib.resources import files
+
+    return Path(str(files("hec_models")))
+
+
+@dataclass
+class CellModel:
+    """A compiled cell and the frames it was built with (all SI units)."""
+
+    model: mujoco.MjModel
+    kinematics: URKinematics
+    T_world_base: np.ndarray
+    T_base_board: np.ndarray
+    T_flange_cam: np.ndarray
+    intrinsics: CameraIntrinsics
+    board: BoardDefinition
+
+    @property
+    def T_world_board(self) -> np.ndarray:
+        return self.T_world_base @ self.T_base_board
+
+    def joint_qpos_addresses(self) -> np.ndarray:
+        """Indices into qpos of the six arm joints, in DH order."""
+        names = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+        return np.array([self.model.joint(ARM_PREFIX + n).qposadr[0] for n in names])
+
+    def board_geom_id(self) -> int:
+        return self.model.geom(BOARD_GEOM).id
+
+
+def _set_pose(element: mujoco.MjsBody | mujoco.MjsCamera, T: np.ndarray) -> None:
+    t, q = xyz_quat_from_transform(T)
+    element.pos = t
+    element.quat = q
+
+
+def build_cell(
+    robot: str,
+    T_flange_cam: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    board: BoardDefinition,
+    T_base_board: np.ndarray,
+    offscreen_size: tuple[int, int] = (1280, 960),
+) -> CellModel:
+    """Compile the cell for one scenario.
+
+    robot: 'ur5' or 'ur5e'. T_flange_cam: (4, 4) camera mount (OpenCV optical
+    frame). T_base_board: (4, 4) pose of the board frame in the base frame.
+    offscreen_size: largest (width, height) rendered, at least the camera's.
+    """
+    if robot not in ROBOTS:
+        raise ValueError(f"unknown robot {robot!r}; choose one of {sorted(ROBOTS)}")
+    root = models_dir()
+    spec = mujoco.MjSpec.from_file(str(root / "cell.xml"))
+    arm = mujoco.MjSpec.from_file(str(root / f"{robot}.xml"))
+    spec.attach(arm, site=spec.site("arm_mount"), prefix=ARM_PREFIX)
+    spec.visual.global_.offwidth = max(offscreen_size[0], intrinsics.width)
+    spec.visual.global_.offheight = max(offscreen_size[1], intrinsics.height)
+
+    _add_camera(spec.body(ARM_PREFIX + "flange"), T_flange_cam, intrinsics)
+    T_world_base = _site_pose(spec, "arm_mount")
+    _add_board(spec, board, T_world_base @ T_base_board)
+    model = spec.compile()
+    return CellModel(model, ROBOTS[robot], T_world_base, T_base_board, T_flange_cam, intrinsics, board)
+
+
+def _site_pose(spec: mujoco.MjSpec, name: str) -> np.ndarray:
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    site = data.site(name)
+    return make_transform(site.xmat.reshape(3, 3), site.xpos)
+
+
+def _add_camera(flange: mujoco.MjsBody, T_flange_cam: np.ndarray, k: CameraIntrinsics) -> None:
+    """A D435-sized housing behind the optical centre, and the camera itself."""
+    body = flange.add_body(name="camera_body")
+    _set_pose(body, T_flange_cam)
+    grey = [0.12, 0.12, 0.13, 1.0]
+    # Housing 90 x 25 x 25 mm, its front face 1.5 mm behind the optical centre.
+    body.add_geom(
+        name="camera_housing",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.045, 0.0125, 0.0125],
+        pos=[0.0, 0.0, -0.014],
+        rgba=grey,
+        contype=_ROBOT_CONTYPE,
+        conaffinity=0,
+    )
+    # Bracket from the housing back to the flange plane (visual only).
+    depth = float(T_flange_cam[2, 3]) - 0.0265
+    if depth > 1e-3:
+        T_cam_flange = invert(T_flange_cam)
+        body.add_geom(
+            name="camera_bracket",
+            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+            size=[0.02, depth / 2],
+            pos=T_cam_flange[:3, 3] + T_cam_flange[:3, 2] * depth / 2,
+            quat=xyz_quat_from_transform(T_cam_flange)[1],
+            rgba=grey,
+            contype=0,
+            conaffinity=0,
+        )
+    camera = body.add_camera(name=CAMERA_NAME)
+    _set_pose(camera, make_transform(R_CAM_MJCAM, np.zeros(3)))
+    camera.resolution = [k.width, k.height]
+    camera.focal_pixel = [k.fx, k.fy]
+    camera.principal_pixel = [(k.width - 1) / 2 - k.cx, (k.height - 1) / 2 - k.cy]
+    camera.sensor_size = [k.width * 3e-6, k.height * 3e-6]
+
+
+def _add_board(spec: mujoco.MjSpec, board: BoardDefinition, T_world_board: np.ndarray) -> None:
+    """The printed sheet as a textured quad at z = 0 of the board frame, on a backing plate."""
+    image = board_image(board, BOARD_TEXTURE_PX_PER_M)
+    rgb = np.repeat(image[:, :, None], 3, axis=2)
+    spec.add_texture(
+        name="board",
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        width=rgb.shape[1],
+        height=rgb.shape[0],
+        nchannel=3,
+    ).data = rgb.tobytes()
+    spec.add_material(name="board", textures=["", "board"], specular=0.0, shininess=0.0)
+    w, h = board.size_m
+    mesh = spec.add_mesh(name="board_sheet")
+    # Corners: top-left, bottom-left, bottom-right, top-right (board frame, x right, y up).
+    mesh.uservert = [-w / 2, h / 2, 0, -w / 2, -h / 2, 0, w / 2, -h / 2, 0, w / 2, h / 2, 0]
+    # Texture row 0 (the sheet's top edge) sits at v = 0.
+    mesh.usertexcoord = [0, 0, 0, 1, 1, 1, 1, 0]
+    mesh.userface = [1, 2, 3, 1, 3, 0]
+    mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+    body = spec.worldbody.add_body(name="board")
+    _set_pose(body, T_world_board)
+    body.add_geom(
+        name=BOARD_GEOM,
+        type=mujoco.mjtGeom.mjGEOM_MESH,
+        meshname="board_sheet",
+        material="board",
+        contype=0,
+        conaffinity=0,
+    )
+    # Backing plate 2 mm thick, 1 mm below the sheet: no face is coplanar with the print.
+    body.add_geom(
+        name="board_plate",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[w / 2, h / 2, 0.001],
+        pos=[0.0, 0.0, -0.002],
+        rgba=[0.9, 0.9, 0.88, 1.0],
+        contype=0,
+        conaffinity=1,
+    )
