@@ -103,9 +103,7 @@ class BoardDefinition:
             "qr_version": self.qr_version,
             "qr_error_correction": self.qr_error_correction,
             "payload_prefix": self.payload_prefix,
-            "markers": [
-                {"id": i, "center_m": list(self.marker_centers_m[i])} for i in self.marker_ids
-            ],
+            "markers": [{"id": i, "center_m": list(self.marker_centers_m[i])} for i in self.marker_ids],
         }
 
     @classmethod

@@ -127,4 +127,3 @@ def solve_ik(
     pos_err, rot_err = float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r))
     converged = pos_err < 1e-8 and rot_err < 1e-8
     return IKResult(q, converged, pos_err, rot_err, iteration)
-

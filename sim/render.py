@@ -39,7 +39,9 @@ class RGBDRenderer:
         self._c = np.float32(-0.5) * c - np.float32(0.5)
         self._d = np.float32(-0.5) * d
 
-    def render(self, data: mujoco.MjData, camera: int | str | mujoco.MjvCamera) -> tuple[np.ndarray, np.ndarray]:
+    def render(
+        self, data: mujoco.MjData, camera: int | str | mujoco.MjvCamera
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Render the view of ``camera`` (id, name or free MjvCamera).
 
         Returns rgb (H, W, 3) uint8 and depth (H, W) float32 metres, row 0 at the top.

@@ -42,7 +42,8 @@ def models_dir() -> Path:
         return MODELS_DIR
     from importlib.resources import files
 
-    return Path(str(files("hec_models")))
+    # hec_models is a namespace package: ask for a file in it to get a real folder.
+    return Path(str(files("hec_models").joinpath("cell.xml"))).parent
 
 
 @dataclass
@@ -190,4 +191,26 @@ def _add_board(spec: mujoco.MjSpec, board: BoardDefinition, T_world_board: np.nd
         rgba=[0.9, 0.9, 0.88, 1.0],
         contype=0,
         conaffinity=1,
+    )
+    if T_world_board[2, 2] > np.cos(np.radians(5.0)):
+        _add_table(spec, T_world_board[:3, 3] - [0.0, 0.0, 0.003])
+
+
+def _add_table(spec: mujoco.MjSpec, top_centre_world: np.ndarray) -> None:
+    """A table whose top face is at top_centre_world (under a board lying face up)."""
+    x, y, z = top_centre_world
+    table = {"contype": 0, "conaffinity": 1, "material": "table"}
+    spec.worldbody.add_geom(
+        name="table_top",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.5, 0.32, 0.02],
+        pos=[x, y, z - 0.02],
+        **table,
+    )
+    spec.worldbody.add_geom(
+        name="table_leg",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.04, 0.04, (z - 0.04) / 2],
+        pos=[x, y, (z - 0.04) / 2],
+        **table,
     )

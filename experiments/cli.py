@@ -1,0 +1,110 @@
+"""The ``hec`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from estimator.board import BoardDefinitionError, load_board
+from estimator.dataset import DatasetError
+from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
+
+USER_ERRORS = (BoardDefinitionError, DatasetError, FileExistsError, ValueError, FileNotFoundError)
+
+
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="render a simulated calibration dataset")
+    p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
+    p.add_argument(
+        "--scenario", type=Path, help="scenario TOML file (default: the built-in default scenario)"
+    )
+    p.add_argument("--seed", type=int, help="noise seed (default: the scenario's 'seed')")
+    p.add_argument("--force", action="store_true", help="replace --out if it exists")
+    p.add_argument(
+        "--preview", action="store_true", help="also write preview/overview.png and preview/contact_sheet.png"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_board(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("board", help="write a true-scale printable board (PNG or PDF)")
+    p.add_argument("--out", required=True, type=Path, help="board.pdf or board.png")
+    p.add_argument("--board", default="hec_8qr", help="board name in models/boards/ or a board JSON file")
+    p.add_argument("--dpi", type=float, default=300.0)
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="the main job: simulate the default cell and report against ground truth")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/demo"), help="dataset folder (replaced if it exists)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+
+
+def _format_matrix(T: np.ndarray) -> str:
+    return "\n".join("  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T)
+
+
+def _print_simulation(result: object, T_flange_cam: np.ndarray) -> None:
+    t, q = xyz_quat_from_transform(T_flange_cam)
+    rpy = np.degrees(rpy_from_transform(T_flange_cam))
+    print(f"dataset: {result.out_dir}  ({result.frames} frames, {len(result.skipped)} waypoints skipped)")
+    for index, reason in result.skipped:
+        print(f"  skipped waypoint {index}: {reason}")
+    print("ground truth T_flange_cam (camera optical frame in the flange/tool0 frame; OpenCV: cam2gripper):")
+    print(_format_matrix(T_flange_cam))
+    print(f"  translation [mm]: {t[0] * 1000:+.3f} {t[1] * 1000:+.3f} {t[2] * 1000:+.3f}")
+    print(f"  quaternion (w x y z): {q[0]:+.6f} {q[1]:+.6f} {q[2]:+.6f} {q[3]:+.6f}")
+    print(f"  roll-pitch-yaw [deg]: {rpy[0]:+.4f} {rpy[1]:+.4f} {rpy[2]:+.4f}")
+    for path in result.preview_files:
+        print(f"preview: {path}")
+
+
+def _board_from_arg(name: str):
+    from sim.scene import models_dir
+
+    named = models_dir() / "boards" / f"{name}.json"
+    return load_board(named if named.is_file() else Path(name))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="hec", description="Eye-in-hand calibration testbench and tool.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_demo(sub)
+    _add_simulate(sub)
+    _add_board(sub)
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "board":
+            from experiments.printable import save_printable_board
+
+            path = save_printable_board(_board_from_arg(args.board), args.out, args.dpi)
+            print(f"wrote {path} at {args.dpi:g} dpi: print at 100% scale and check the 100 mm bar")
+            return 0
+        from sim.scenario import ScenarioError, load_scenario
+        from sim.simulate import simulate
+        from sim.trajectory import WaypointFileError
+
+        try:
+            if args.command == "demo":
+                scenario = load_scenario(None)
+                result = simulate(scenario, args.out, args.seed, force=True, preview=True)
+            else:
+                scenario = load_scenario(args.scenario)
+                seed = scenario.seed if args.seed is None else args.seed
+                result = simulate(scenario, args.out, seed, args.force, args.preview, progress=not args.quiet)
+        except (ScenarioError, WaypointFileError) as exc:
+            print(f"hec: error: {exc}", file=sys.stderr)
+            return 2
+        _print_simulation(result, scenario.mount.transform())
+        return 0
+    except USER_ERRORS as exc:
+        print(f"hec: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

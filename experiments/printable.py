@@ -1,0 +1,63 @@
+"""A true-scale printable board from a board definition (PNG or PDF at a known DPI)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PIL import Image
+
+from estimator.board import BoardDefinition, board_image
+
+SCALE_BAR_M = 0.1
+
+
+def printable_board(board: BoardDefinition, dpi: float) -> np.ndarray:
+    """(H, W) uint8 sheet at ``dpi`` with the board name, marker IDs and a 100 mm scale bar
+    drawn in the margins (outside every quiet zone)."""
+    px_per_m = dpi / 0.0254
+    sheet = board_image(board, px_per_m)
+    h, w = sheet.shape
+    font_scale = max(0.4, dpi / 300 * 0.9)
+    thickness = max(1, round(dpi / 150))
+    margin_y = round(0.008 * px_per_m)
+    label = f"{board.name}  marker {board.marker_size_m * 1000:g} mm  print at {dpi:g} dpi, 100% scale"
+    cv2.putText(
+        sheet,
+        label,
+        (margin_y, h - margin_y),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        font_scale,
+        0,
+        thickness,
+        cv2.LINE_AA,
+    )
+    bar = round(SCALE_BAR_M * px_per_m)
+    y = h - 3 * margin_y
+    x1 = w - margin_y - bar
+    cv2.rectangle(sheet, (x1, y - thickness * 3), (x1 + bar, y), 0, -1)
+    cv2.putText(
+        sheet,
+        "100 mm",
+        (x1, y - 4 * thickness - 4),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        font_scale,
+        0,
+        thickness,
+        cv2.LINE_AA,
+    )
+    return sheet
+
+
+def save_printable_board(board: BoardDefinition, path: str | Path, dpi: float = 300.0) -> Path:
+    """Write the sheet as .png or .pdf with its DPI recorded, so it prints at true scale."""
+    path = Path(path)
+    if path.suffix.lower() not in (".png", ".pdf"):
+        raise ValueError(f"{path}: choose a .png or .pdf file name")
+    image = Image.fromarray(printable_board(board, dpi), mode="L")
+    if path.suffix.lower() == ".pdf":
+        image.save(path, "PDF", resolution=dpi)
+    else:
+        image.save(path, "PNG", dpi=(dpi, dpi))
+    return path

@@ -1,0 +1,234 @@
+"""The simulated cell: move the arm to a waypoint, report the flange pose, capture an RGB-D frame.
+
+This is the same small interface the real cell offers (hardware/), so a
+calibration session cannot tell them apart. The simulator also knows the
+truth: true joint angles and flange pose per frame, the mount and the board pose.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from estimator.camera import project_points
+from estimator.dataset import Frame
+from estimator.geometry import invert
+from sim.kinematics import forward, solve_ik
+from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
+from sim.render import RGBDRenderer
+from sim.scenario import Scenario
+from sim.scene import CAMERA_NAME, build_cell
+from sim.trajectory import Waypoint
+
+# Fixed IK restarts tried when the current configuration does not lead to a valid solution.
+_IK_SEEDS = np.array(
+    [
+        [-2.4, -2.25, 1.95, 0.3, -2.4, 0.0],
+        [-0.8, -0.9, -1.95, -0.3, 2.4, 0.0],
+        [-1.57, -1.57, 1.57, -1.57, -1.57, 0.0],
+        [1.57, -1.57, 1.57, 0.0, 1.57, 0.0],
+        [0.0, -1.0, 2.0, -1.0, -1.57, 0.0],
+        [-3.14, -2.0, 1.0, 1.0, -1.57, 0.0],
+    ]
+)
+# Simulated timing: joint speed while moving and the settle time at each waypoint.
+JOINT_SPEED_RAD_S = 0.5
+SETTLE_S = 1.0
+
+
+class WaypointRejected(Exception):
+    """A waypoint cannot be used; ``reason`` says why in plain words."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """What the simulator knows about a captured frame."""
+
+    T_base_flange: np.ndarray
+    joints: np.ndarray
+
+
+class SimCell:
+    """A MuJoCo cell built from a scenario. Noise comes from ``rng``."""
+
+    def __init__(self, scenario: Scenario, rng: np.random.Generator) -> None:
+        self.scenario = scenario
+        self.rng = rng
+        self.intrinsics = scenario.camera.intrinsics()
+        self.board = scenario.board_definition()
+        self.cell = build_cell(
+            scenario.robot,
+            scenario.mount.transform(),
+            self.intrinsics,
+            self.board,
+            scenario.board.transform(),
+        )
+        self.model = self.cell.model
+        self.data = mujoco.MjData(self.model)
+        self._qpos = self.cell.joint_qpos_addresses()
+        self._renderer: RGBDRenderer | None = None
+        self._camera_body = self.model.body("camera_body").id
+        self._board_geom = self.cell.board_geom_id()
+        self.joints = np.array(_IK_SEEDS[0])
+        self.time_s = 0.0
+        self._set_joints(self.joints)
+
+    @property
+    def renderer(self) -> RGBDRenderer:
+        if self._renderer is None:
+            self._renderer = RGBDRenderer(self.model, self.intrinsics.width, self.intrinsics.height)
+        return self._renderer
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # --- the cell interface -------------------------------------------------------------
+
+    def move_to(self, waypoint: Waypoint) -> None:
+        """Solve IK from the current joints, check the result, and move there.
+
+        Raises WaypointRejected (and stays put) when the waypoint is out of reach,
+        outside the joint limits, in collision, or does not show every marker.
+        """
+        previous = self.joints
+        problem = "out of reach: IK found no solution within the joint limits"
+        for q in self._ik_candidates(waypoint):
+            self._set_joints(q)
+            problem = self._collision() or self.markers_visible_problem()
+            if problem is None:
+                self.time_s += float(np.max(np.abs(q - previous))) / JOINT_SPEED_RAD_S + SETTLE_S
+                return
+        self._set_joints(previous)
+        raise WaypointRejected(problem)
+
+    def flange_pose(self) -> np.ndarray:
+        """Reported T_base_flange (4, 4): the true pose with the robot pose noise."""
+        return perturb_flange_pose(self.true_flange_pose(), self.scenario.noise.robot_pose, self.rng)
+
+    def capture(self) -> tuple[Frame, FrameTruth]:
+        """Render and apply the sensor models. Returns the frame and its ground truth."""
+        rgb, depth_true = self.render_true()
+        noise = self.scenario.noise
+        frame = Frame(
+            rgb=apply_rgb_models(rgb, noise.rgb, self.rng),
+            depth_m=apply_depth_models(depth_true, self.intrinsics, noise, self.rng),
+            intrinsics=self.intrinsics,
+            T_base_flange=self.flange_pose(),
+            joints=self.joints.copy(),
+            time_s=self.time_s,
+        )
+        return frame, FrameTruth(self.true_flange_pose(), self.joints.copy())
+
+    # --- ground truth and checks ---------------------------------------------------------
+
+    def true_flange_pose(self) -> np.ndarray:
+        return forward(self.cell.kinematics, self.joints)
+
+    def T_base_cam(self) -> np.ndarray:
+        return self.true_flange_pose() @ self.cell.T_flange_cam
+
+    def render_true(self) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free rgb (H, W, 3) uint8 and depth (H, W) float32 metres from the camera."""
+        return self.renderer.render(self.data, CAMERA_NAME)
+
+    def markers_visible_problem(self) -> str | None:
+        """None if every marker corner is in the image with the margin, faces the camera
+        within the allowed angle and is not hidden; else the reason."""
+        settings = self.scenario.trajectory
+        T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
+        corners = self.board.all_corners().reshape(-1, 3)
+        p_cam = corners @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+        if np.any(p_cam[:, 2] <= 0.05):
+            return "the board is behind the camera or closer than 5 cm"
+        normal_cam = T_cam_board[:3, 2]
+        cos_view = -(p_cam @ normal_cam) / np.linalg.norm(p_cam, axis=1)
+        worst = np.degrees(np.arccos(np.clip(cos_view.min(), -1, 1)))
+        if worst > settings.max_view_angle_deg:
+            limit = settings.max_view_angle_deg
+            return f"the board is seen at {worst:.0f} degrees, more than max_view_angle_deg {limit:g}"
+        uv = project_points(T_cam_board, corners, self.intrinsics.K)
+        m = settings.margin_px
+        k = self.intrinsics
+        outside = (
+            (uv[:, 0] < m - 0.5)
+            | (uv[:, 0] > k.width - 0.5 - m)
+            | (uv[:, 1] < m - 0.5)
+            | (uv[:, 1] > k.height - 0.5 - m)
+        )
+        if np.any(outside):
+            ids = sorted({self.board.marker_ids[i // 4] for i in np.nonzero(outside)[0]})
+            return f"markers {ids} are not inside the image with a {m:g} px margin"
+        hidden = self._hidden_corners(corners)
+        if hidden:
+            what = ", ".join(f"{i} by {label}" for i, label in sorted(hidden.items()))
+            return f"markers hidden: {what}"
+        return None
+
+    def _hidden_corners(self, corners_board: np.ndarray) -> dict[int, str]:
+        """Markers with a corner whose line of sight hits something else first: ID -> what."""
+        T_world_cam = self.cell.T_world_base @ self.T_base_cam()
+        origin = T_world_cam[:3, 3]
+        T_world_board = self.cell.T_world_board
+        hidden: dict[int, str] = {}
+        geom_id = np.zeros(1, dtype=np.int32)
+        for i, p_board in enumerate(corners_board):
+            target = T_world_board[:3, :3] @ p_board + T_world_board[:3, 3]
+            ray = target - origin
+            distance = np.linalg.norm(ray)
+            hit = mujoco.mj_ray(
+                self.model, self.data, origin, ray / distance, None, 1, self._camera_body, geom_id
+            )
+            if hit >= 0 and hit < distance - 1e-3 and geom_id[0] != self._board_geom:
+                hidden.setdefault(self.board.marker_ids[i // 4], self._geom_label(geom_id[0]))
+        return hidden
+
+    def _collision(self) -> str | None:
+        if self.data.ncon == 0:
+            return None
+        pairs = {
+            tuple(sorted((self._geom_label(c.geom1), self._geom_label(c.geom2))))
+            for c in self.data.contact[: self.data.ncon]
+        }
+        return "collision: " + ", ".join(f"{a} touches {b}" for a, b in sorted(pairs))
+
+    def _geom_label(self, geom_id: int) -> str:
+        """A geom's name, or its body's name when it has none."""
+        geom = self.model.geom(geom_id)
+        return geom.name or self.model.body(geom.bodyid[0]).name
+
+    def _set_joints(self, q: np.ndarray) -> None:
+        self.joints = np.array(q, dtype=float)
+        self.data.qpos[self._qpos] = self.joints
+        mujoco.mj_forward(self.model, self.data)
+
+    def _ik_candidates(self, waypoint: Waypoint) -> Iterator[np.ndarray]:
+        """Joint solutions for the waypoint, the smallest move from the current joints first.
+
+        The current joints are tried as the IK seed first; the fixed restarts
+        only when that fails or asks for a large move.
+        """
+        kin = self.cell.kinematics
+        if waypoint.joints is not None:
+            q = np.asarray(waypoint.joints, dtype=float)
+            if np.any(q < kin.q_lower) or np.any(q > kin.q_upper):
+                raise WaypointRejected("joint target outside the joint limits")
+            yield q
+            return
+        first = solve_ik(kin, waypoint.T_base_flange, self.joints)
+        if first.converged and np.max(np.abs(first.q - self.joints)) < 1.0:
+            yield first.q
+        solutions = [first.q] if first.converged else []
+        for seed in _IK_SEEDS:
+            result = solve_ik(kin, waypoint.T_base_flange, seed)
+            if result.converged and not any(np.allclose(result.q, q, atol=1e-6) for q in solutions):
+                solutions.append(result.q)
+        yield from sorted(solutions, key=lambda q: float(np.max(np.abs(q - self.joints))))

@@ -1,0 +1,156 @@
+"""Sensor and robot noise models applied to the renderer's ideal outputs.
+
+Depth (D435-like stereo): systematic bias, Gaussian noise growing with z^2,
+invalid pixels at grazing angles and at random, and quantisation to the steps
+of a uint16 depth image. Colour: Gaussian blur and additive Gaussian noise.
+Robot: a noisy reported flange pose. Pure numpy/scipy/OpenCV (no MuJoCo).
+
+All randomness comes from the ``numpy.random.Generator`` passed in; the same
+settings and generator state give bit-identical results. Depth is in metres
+along the optical axis, 0.0 marks an invalid pixel.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from estimator.camera import CameraIntrinsics
+from estimator.dataset import decode_depth, encode_depth
+from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
+
+# Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
+MAX_RANGE_M = 10.0
+
+
+def depth_sigma(z_m: np.ndarray, settings: DepthNoise) -> np.ndarray:
+    """Standard deviation of stereo depth noise, sigma(z) = z^2 * subpixel / (focal_px * baseline_m).
+
+    z_m: depth along the optical axis, metres, any shape. Returns the same shape, metres (float64).
+    """
+    z = np.asarray(z_m, dtype=np.float64)
+    return z * z * (settings.subpixel / (settings.focal_px * settings.baseline_m))
+
+
+def _valid_mask(depth_m: np.ndarray) -> np.ndarray:
+    """(H, W) bool: finite depth in (0, MAX_RANGE_M]."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(depth_m) & (depth_m > 0.0) & (depth_m <= MAX_RANGE_M)
+
+
+def _grazing_mask(
+    depth_true_m: np.ndarray, valid: np.ndarray, intrinsics: CameraIntrinsics, grazing_angle_deg: float
+) -> np.ndarray:
+    """(H, W) bool: pixels seen at more than grazing_angle_deg between the viewing ray and the surface normal.
+
+    Normals come from the back-projected true depth (camera frame, metres) by
+    central differences (one-sided at the image border). A pixel next to an
+    invalid pixel gets no normal and is counted as grazing (a depth edge).
+    """
+    h, w = depth_true_m.shape
+    if h < 2 or w < 2:
+        return np.ones((h, w), dtype=bool)
+    z = np.where(valid, depth_true_m.astype(np.float64), np.nan)
+    u = np.arange(w, dtype=np.float64)
+    v = np.arange(h, dtype=np.float64)
+    x = z * ((u - intrinsics.cx) / intrinsics.fx)[None, :]
+    y = z * ((v - intrinsics.cy) / intrinsics.fy)[:, None]
+    p = np.stack([x, y, z], axis=-1)  # (H, W, 3) points in the camera frame
+    dp_dv, dp_du = np.gradient(p, axis=(0, 1))
+    n = np.cross(dp_du, dp_dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_angle = np.abs(np.sum(n * p, axis=-1)) / (np.linalg.norm(n, axis=-1) * np.linalg.norm(p, axis=-1))
+        keep = cos_angle >= np.cos(np.radians(grazing_angle_deg))  # NaN compares False
+    return ~keep
+
+
+def apply_depth_models(
+    depth_true_m: np.ndarray, intrinsics: CameraIntrinsics, noise: NoiseSettings, rng: np.random.Generator
+) -> np.ndarray:
+    """The measured depth image from the true one.
+
+    depth_true_m: (H, W) depth along the optical axis, metres; values <= 0, non-finite
+    or > MAX_RANGE_M (e.g. the far plane) are invalid. intrinsics: the depth image's camera.
+    Returns (H, W) float32 metres, 0.0 = invalid. Applied in order: bias, Gaussian noise
+    with sigma(z_true), invalidation (grazing angle from the true depth, random dropout),
+    quantisation to multiples of depth_scale_m (what does not fit a uint16 becomes 0).
+    """
+    depth_true_m = np.asarray(depth_true_m)
+    if depth_true_m.ndim != 2:
+        raise ValueError(f"depth must be (H, W), got shape {depth_true_m.shape}")
+    if depth_true_m.shape != (intrinsics.height, intrinsics.width):
+        raise ValueError(
+            f"depth shape {depth_true_m.shape} does not match the intrinsics "
+            f"({intrinsics.height}, {intrinsics.width})"
+        )
+    valid = _valid_mask(depth_true_m)
+    z_true = np.where(valid, depth_true_m, 0.0).astype(np.float64)
+    z = z_true.copy()
+
+    bias = noise.depth_bias
+    if bias.enabled:
+        z = bias.scale * z + bias.offset_m
+
+    if noise.depth.enabled:
+        z = z + depth_sigma(z_true, noise.depth) * rng.standard_normal(z.shape)
+
+    invalid = noise.invalid_depth
+    if invalid.enabled:
+        valid &= ~_grazing_mask(depth_true_m, valid, intrinsics, invalid.grazing_angle_deg)
+        if invalid.dropout_fraction > 0.0:
+            valid &= rng.random(z.shape) >= invalid.dropout_fraction
+
+    valid &= z > 0.0  # bias or noise may push a depth to or below zero
+    z = np.where(valid, z, 0.0)
+
+    quant = noise.depth_quantisation
+    if quant.enabled:
+        return decode_depth(encode_depth(z, quant.depth_scale_m), quant.depth_scale_m)
+    return z.astype(np.float32)
+
+
+def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generator) -> np.ndarray:
+    """The measured colour image: Gaussian blur (sigma blur_sigma_px, pixels), then additive
+    Gaussian noise (std sigma, grey levels), rounded and clipped to 0..255.
+
+    rgb: (H, W, 3) uint8. Returns a new (H, W, 3) uint8 array (an unchanged copy when disabled).
+    """
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be (H, W, 3) uint8, got shape {rgb.shape} dtype {rgb.dtype}")
+    if not settings.enabled:
+        return rgb.copy()
+    img = rgb.astype(np.float32)
+    if settings.blur_sigma_px > 0.0:
+        img = cv2.GaussianBlur(
+            img,
+            (0, 0),
+            sigmaX=settings.blur_sigma_px,
+            sigmaY=settings.blur_sigma_px,
+            borderType=cv2.BORDER_REFLECT_101,
+        )
+    if settings.sigma > 0.0:
+        img = img + (settings.sigma * rng.standard_normal(img.shape)).astype(np.float32)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def perturb_flange_pose(
+    T_base_flange: np.ndarray, settings: RobotPoseNoise, rng: np.random.Generator
+) -> np.ndarray:
+    """The reported flange pose from the true one.
+
+    T_base_flange: (4, 4) true pose of the flange in the base frame, metres.
+    Returns (4, 4): translation + N(0, translation_sigma_m^2) per base axis, rotation
+    R @ Exp(w) with w ~ N(0, rotation_sigma^2) per flange axis (radians). A copy when disabled.
+    """
+    T = np.array(T_base_flange, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"T_base_flange must be (4, 4), got {T.shape}")
+    if not settings.enabled:
+        return T
+    dt = rng.normal(0.0, settings.translation_sigma_m, 3)
+    w = rng.normal(0.0, np.radians(settings.rotation_sigma_deg), 3)
+    T[:3, 3] += dt
+    T[:3, :3] = T[:3, :3] @ Rotation.from_rotvec(w).as_matrix()
+    return T

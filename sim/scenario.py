@@ -1,0 +1,229 @@
+"""Scenario files (TOML): robot, camera intrinsics and mount, board pose, noise, trajectory.
+
+Every key is optional; what is left out takes the default shown in
+models/scenarios/default.toml. Lengths are metres (keys end in ``_m``),
+angles degrees (keys end in ``_deg``). Rotations are roll-pitch-yaw about the
+fixed x, y, z axes: R = Rz(yaw) @ Ry(pitch) @ Rx(roll).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import tomllib
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from estimator.board import BoardDefinition, load_board
+from estimator.camera import CameraIntrinsics
+from estimator.geometry import transform_from_xyz_rpy
+
+Vector3 = tuple[float, float, float]
+
+
+class ScenarioError(ValueError):
+    """A scenario file cannot be read or has a bad key."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CameraSettings(_Section):
+    """Colour camera. Without fx/fy/cx/cy: square pixels, centred principal point, fovy_deg."""
+
+    width: int = Field(640, gt=0)
+    height: int = Field(480, gt=0)
+    # D435 colour sensor: 69 x 42 degrees at 16:9; 640x480 keeps the vertical field.
+    fovy_deg: float = Field(42.5, gt=0, lt=180)
+    fx: float | None = Field(None, gt=0)
+    fy: float | None = Field(None, gt=0)
+    cx: float | None = None
+    cy: float | None = None
+
+    @model_validator(mode="after")
+    def _all_or_none(self) -> CameraSettings:
+        given = [v is not None for v in (self.fx, self.fy, self.cx, self.cy)]
+        if any(given) and not all(given):
+            raise ValueError("give all of fx, fy, cx, cy (pixels) or none of them")
+        return self
+
+    def intrinsics(self) -> CameraIntrinsics:
+        if self.fx is None:
+            return CameraIntrinsics.from_fovy(self.width, self.height, np.radians(self.fovy_deg))
+        return CameraIntrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
+
+
+class PoseSettings(_Section):
+    translation_m: Vector3 = (0.0, 0.0, 0.0)
+    rotation_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
+
+    def transform(self) -> np.ndarray:
+        return transform_from_xyz_rpy(np.array(self.translation_m), np.radians(self.rotation_rpy_deg))
+
+
+class MountSettings(PoseSettings):
+    """T_flange_cam. Default: the paper's mount, 6 mm along +Y and 40 mm along +Z
+    of the flange, looking along the tool axis."""
+
+    translation_m: Vector3 = (0.0, 0.006, 0.040)
+
+
+class BoardSettings(PoseSettings):
+    """The board definition and T_base_board. Default: lying in the base X-Z
+    plane (face up, +Y of the base) 0.7 m below the base, 0.45 m out from the
+    wall and 0.15 m to the right, so that no view puts the wrist near the base
+    axis, where a UR arm cannot reach."""
+
+    definition: str = "hec_8qr"
+    translation_m: Vector3 = (0.15, -0.7, 0.45)
+    rotation_rpy_deg: Vector3 = (-90.0, 0.0, 0.0)
+
+
+class DepthNoise(_Section):
+    """Stereo depth noise, sigma(z) = z^2 * subpixel / (focal_px * baseline_m) (D435-like)."""
+
+    enabled: bool = True
+    subpixel: float = Field(0.08, ge=0)
+    baseline_m: float = Field(0.050, gt=0)
+    # Focal length of the D435 depth imager at 848x480 (about 87 degrees horizontal).
+    focal_px: float = Field(425.0, gt=0)
+
+
+class InvalidDepth(_Section):
+    """Zeros where the surface is seen at a grazing angle, and at random pixels."""
+
+    enabled: bool = True
+    grazing_angle_deg: float = Field(75.0, gt=0, le=90)
+    dropout_fraction: float = Field(0.002, ge=0, lt=1)
+
+
+class DepthQuantisation(_Section):
+    """Round depth to multiples of depth_scale_m, as a uint16 depth image stores it."""
+
+    enabled: bool = True
+    depth_scale_m: float = Field(0.001, gt=0)
+
+
+class DepthBias(_Section):
+    """Systematic depth error: z_measured = scale * z + offset_m."""
+
+    enabled: bool = False
+    scale: float = Field(1.0, gt=0)
+    offset_m: float = 0.0
+
+
+class RGBNoise(_Section):
+    """Gaussian blur, then additive Gaussian noise (8-bit grey levels)."""
+
+    enabled: bool = True
+    sigma: float = Field(2.0, ge=0)
+    blur_sigma_px: float = Field(0.5, ge=0)
+
+
+class RobotPoseNoise(_Section):
+    """Noise on the reported flange pose (the true pose is kept apart).
+
+    Reported T_base_flange: translation + N(0, translation_sigma_m^2) per base
+    axis; rotation R @ Exp(N(0, rotation_sigma_deg^2) per flange axis).
+    UR5 rated repeatability is +-0.1 mm.
+    """
+
+    enabled: bool = True
+    translation_sigma_m: float = Field(1e-4, ge=0)
+    rotation_sigma_deg: float = Field(0.01, ge=0)
+
+
+class NoiseSettings(_Section):
+    depth: DepthNoise = DepthNoise()
+    invalid_depth: InvalidDepth = InvalidDepth()
+    depth_quantisation: DepthQuantisation = DepthQuantisation()
+    depth_bias: DepthBias = DepthBias()
+    rgb: RGBNoise = RGBNoise()
+    robot_pose: RobotPoseNoise = RobotPoseNoise()
+
+    def all_off(self) -> NoiseSettings:
+        """The same settings with every model switched off."""
+        sections = {name: getattr(self, name) for name in NoiseSettings.model_fields}
+        return NoiseSettings(
+            **{name: s.model_copy(update={"enabled": False}) for name, s in sections.items()}
+        )
+
+
+class TrajectorySettings(_Section):
+    """Where the arm goes.
+
+    kind 'rotation-rich' (default): views of the board centre tilted 15-35
+    degrees about two board axes and rolled about the optical axis.
+    kind 'paper': the paper's fixed-orientation translations of 30-40 mm in x, y, z.
+    kind 'file': waypoints read from ``file`` (CSV, see the README).
+    """
+
+    kind: Literal["rotation-rich", "paper", "file"] = "rotation-rich"
+    file: str | None = None
+    distance_m: float = Field(0.45, gt=0.1, lt=2.0)
+    margin_px: float = Field(12.0, ge=0)
+    max_view_angle_deg: float = Field(60.0, gt=0, lt=90)
+
+    @model_validator(mode="after")
+    def _file_given(self) -> TrajectorySettings:
+        if (self.kind == "file") != (self.file is not None):
+            raise ValueError("'file' is needed exactly when kind = 'file'")
+        return self
+
+
+class Scenario(_Section):
+    robot: Literal["ur5", "ur5e"] = "ur5"
+    seed: int = Field(0, ge=0)
+    camera: CameraSettings = CameraSettings()
+    mount: MountSettings = MountSettings()
+    board: BoardSettings = BoardSettings()
+    noise: NoiseSettings = NoiseSettings()
+    trajectory: TrajectorySettings = TrajectorySettings()
+    # Folder that relative paths in the file (board definition, waypoints) are read from.
+    base_dir: str = Field(".", exclude=True)
+
+    def board_definition(self) -> BoardDefinition:
+        """A board name in models/boards/, or a JSON path relative to the scenario."""
+        from sim.scene import models_dir
+
+        named = models_dir() / "boards" / f"{self.board.definition}.json"
+        if named.is_file():
+            return load_board(named)
+        return load_board(Path(self.base_dir) / self.board.definition)
+
+    def waypoint_file(self) -> Path | None:
+        return None if self.trajectory.file is None else Path(self.base_dir) / self.trajectory.file
+
+    def to_dict(self) -> dict:
+        return self.model_dump(mode="json")
+
+
+def load_scenario(path: str | Path | None) -> Scenario:
+    """Read and validate a scenario file; None gives the default scenario."""
+    if path is None:
+        return Scenario()
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: scenario file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
+    if "base_dir" in data:
+        raise ScenarioError(f"{path}: key 'base_dir': unknown key")
+    return scenario_from_dict(data, source=str(path), base_dir=path.parent)
+
+
+def scenario_from_dict(data: dict, source: str = "scenario", base_dir: Path = Path(".")) -> Scenario:
+    try:
+        return Scenario(**data, base_dir=str(base_dir))
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            key = ".".join(str(part) for part in err["loc"]) or "(top level)"
+            message = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+            got = "" if err["type"] in ("extra_forbidden", "missing") else f" (got {err['input']!r})"
+            problems.append(f"{source}: key '{key}': {message}{got}")
+        raise ScenarioError("\n".join(problems)) from None

@@ -1,0 +1,97 @@
+"""Render a scenario into a dataset: move, check, capture and write each waypoint."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from estimator.dataset import DatasetWriter, GroundTruth
+from sim.cell import SimCell, WaypointRejected
+from sim.preview import write_preview
+from sim.scenario import Scenario
+from sim.trajectory import Waypoint, paper_waypoints, read_waypoint_file, rotation_rich_waypoints
+
+
+@dataclass
+class SimulationResult:
+    out_dir: Path
+    frames: int
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    preview_files: list[Path] = field(default_factory=list)
+
+
+def scenario_waypoints(scenario: Scenario) -> list[Waypoint]:
+    """The scenario's trajectory as waypoints."""
+    kind = scenario.trajectory.kind
+    if kind == "file":
+        return read_waypoint_file(scenario.waypoint_file())
+    make = paper_waypoints if kind == "paper" else rotation_rich_waypoints
+    return make(scenario.board.transform(), scenario.mount.transform(), scenario.trajectory.distance_m)
+
+
+def simulate(
+    scenario: Scenario,
+    out_dir: str | Path,
+    seed: int,
+    force: bool = False,
+    preview: bool = False,
+    progress: bool = True,
+) -> SimulationResult:
+    """Render every reachable waypoint of the scenario into a dataset at out_dir.
+
+    Waypoints that cannot be used are skipped, reported on stderr and listed
+    in dataset.json with their reason. ``seed`` drives every noise model.
+    """
+    waypoints = scenario_waypoints(scenario)
+    rng = np.random.default_rng(seed)
+    cell = SimCell(scenario, rng)
+    truth = GroundTruth(cell.cell.T_flange_cam, cell.cell.T_base_board, cell.cell.T_world_base)
+    skipped: list[tuple[int, str]] = []
+    frame_rgb: list[np.ndarray] = []
+    try:
+        with DatasetWriter(
+            out_dir,
+            cell.intrinsics,
+            cell.board,
+            scenario.noise.depth_quantisation.depth_scale_m,
+            source="sim",
+            force=force,
+        ) as writer:
+            for waypoint in tqdm(
+                waypoints, desc="rendering", unit="view", disable=not progress, file=sys.stderr
+            ):
+                try:
+                    cell.move_to(waypoint)
+                except WaypointRejected as rejected:
+                    skipped.append((waypoint.index, rejected.reason))
+                    tqdm.write(
+                        f"waypoint {waypoint.index} ({waypoint.label}) skipped: {rejected.reason}",
+                        file=sys.stderr,
+                    )
+                    continue
+                frame, frame_truth = cell.capture()
+                writer.add_frame(frame)
+                truth.T_base_flange.append(frame_truth.T_base_flange)
+                truth.joints.append(frame_truth.joints)
+                frame_rgb.append(frame.rgb)
+            if not frame_rgb:
+                raise RuntimeError("no waypoint could be used; see the reasons above")
+            preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
+            extra = {
+                "simulation": {
+                    "seed": seed,
+                    "scenario": scenario.to_dict(),
+                    "waypoints": len(waypoints),
+                    "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
+                }
+            }
+            final = writer.finish(truth, extra)
+    finally:
+        cell.close()
+    return SimulationResult(
+        final, len(frame_rgb), skipped, [final / "preview" / p.name for p in preview_files]
+    )

@@ -1,0 +1,124 @@
+"""The wheel ships the four packages, the models (as ``hec_models``) and the ``hec`` script.
+
+The wheel is built with ``pip wheel --no-deps`` (build isolation: setuptools comes from
+PyPI) from a clean copy of the repository, so that stale ``build/`` output in the work
+tree can neither hide a missing file nor be left behind by the test.
+"""
+
+from __future__ import annotations
+
+import configparser
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from email.parser import Parser
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGES = ("sim", "estimator", "experiments", "hardware")
+MODEL_PATTERNS = ("*.xml", "boards/*.json", "scenarios/*.toml", "scenarios/*.csv")
+_NOT_COPIED = shutil.ignore_patterns(
+    ".git",
+    ".venv",
+    "build",
+    "dist",
+    "*.egg-info",
+    "__pycache__",
+    ".pytest_cache",
+    ".ruff_cache",
+    ".benchmarks",
+    "runs",
+)
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tmp = tmp_path_factory.mktemp("wheel")
+    src = tmp / "src"
+    shutil.copytree(REPO, src, ignore=_NOT_COPIED)
+    out = tmp / "dist"
+    env = {**os.environ, "PIP_DISABLE_PIP_VERSION_CHECK": "1", "PIP_NO_INPUT": "1"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", str(out), str(src)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert proc.returncode == 0, f"pip wheel failed:\n{proc.stdout}\n{proc.stderr}"
+    wheels = sorted(out.glob("hec-*.whl"))
+    assert len(wheels) == 1, f"expected one hec wheel, got {[w.name for w in out.iterdir()]}"
+    return wheels[0]
+
+
+def _names(wheel: Path) -> set[str]:
+    with zipfile.ZipFile(wheel) as zf:
+        return set(zf.namelist())
+
+
+def _dist_info_file(wheel: Path, name: str) -> str:
+    with zipfile.ZipFile(wheel) as zf:
+        matches = [n for n in zf.namelist() if n.endswith(f".dist-info/{name}") and n.count("/") == 1]
+        assert len(matches) == 1, f"{name} not found once in the wheel's .dist-info: {matches}"
+        return zf.read(matches[0]).decode()
+
+
+def test_wheel_ships_the_models(wheel: Path) -> None:
+    names = _names(wheel)
+    for required in ("hec_models/ur5.xml", "hec_models/cell.xml", "hec_models/boards/hec_8qr.json"):
+        assert required in names
+    models = REPO / "models"
+    for pattern in MODEL_PATTERNS:
+        for path in models.glob(pattern):
+            assert f"hec_models/{path.relative_to(models).as_posix()}" in names
+
+
+def test_wheel_ships_every_package(wheel: Path) -> None:
+    names = _names(wheel)
+    for package in PACKAGES:
+        assert f"{package}/__init__.py" in names
+        # Every sub-package and module in the source tree is in the wheel.
+        for path in (REPO / package).rglob("*.py"):
+            if "__pycache__" not in path.parts:
+                assert path.relative_to(REPO).as_posix() in names
+    assert not any(n.startswith(("tests/", "models/")) for n in names)
+
+
+def test_wheel_metadata_and_entry_point(wheel: Path) -> None:
+    meta = Parser().parsestr(_dist_info_file(wheel, "METADATA"))
+    assert meta["Name"] == "hec"
+    assert meta["Version"] == "0.1.0"
+    assert meta["Requires-Python"] == ">=3.10"
+    requires = " ".join(meta.get_all("Requires-Dist") or [])
+    assert "opencv-python-headless" in requires and "<5" in requires
+
+    entry_points = configparser.ConfigParser()
+    entry_points.read_string(_dist_info_file(wheel, "entry_points.txt"))
+    assert entry_points["console_scripts"]["hec"].strip() == "experiments.cli:main"
+
+
+def test_models_found_with_importlib_resources(wheel: Path, tmp_path: Path) -> None:
+    site = tmp_path / "site"
+    with zipfile.ZipFile(wheel) as zf:
+        zf.extractall(site)
+    code = (
+        "from importlib.resources import files\n"
+        "p = files('hec_models') / 'ur5.xml'\n"
+        "assert p.is_file(), p\n"
+        "print(p)\n"
+    )
+    # -S: no site-packages, so the editable install of the work tree cannot answer instead.
+    proc = subprocess.run(
+        [sys.executable, "-S", "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(site)},
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert Path(proc.stdout.strip()).resolve() == (site / "hec_models" / "ur5.xml").resolve()
