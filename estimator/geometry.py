@@ -31,9 +31,13 @@ def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle(R: np.ndarray) -> float:
-    """Geodesic angle of a (3, 3) rotation, radians in [0, pi]."""
-    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.arccos(cos))
+    """Geodesic angle of a (3, 3) rotation, radians in [0, pi].
+
+    atan2 of sine and cosine keeps full precision near 0, where arccos loses it.
+    """
+    sin = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    cos = (np.trace(R) - 1.0) / 2.0
+    return float(np.arctan2(sin, cos))
 
 
 def pose_error(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:

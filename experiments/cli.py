@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {path} at {args.dpi:g} dpi: print at 100% scale and check the 100 mm bar")
             return 0
         from sim.scenario import ScenarioError, load_scenario
-        from sim.simulate import simulate
+        from sim.simulate import SimulationError, simulate
         from sim.trajectory import WaypointFileError
 
         try:
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
                 scenario = load_scenario(args.scenario)
                 seed = scenario.seed if args.seed is None else args.seed
                 result = simulate(scenario, args.out, seed, args.force, args.preview, progress=not args.quiet)
-        except (ScenarioError, WaypointFileError) as exc:
+        except (ScenarioError, WaypointFileError, SimulationError) as exc:
             print(f"hec: error: {exc}", file=sys.stderr)
             return 2
         _print_simulation(result, scenario.mount.transform())

@@ -51,16 +51,19 @@ def _grazing_mask(
     h, w = depth_true_m.shape
     if h < 2 or w < 2:
         return np.ones((h, w), dtype=bool)
-    z = np.where(valid, depth_true_m.astype(np.float64), np.nan)
-    u = np.arange(w, dtype=np.float64)
-    v = np.arange(h, dtype=np.float64)
-    x = z * ((u - intrinsics.cx) / intrinsics.fx)[None, :]
-    y = z * ((v - intrinsics.cy) / intrinsics.fy)[:, None]
-    p = np.stack([x, y, z], axis=-1)  # (H, W, 3) points in the camera frame
-    dp_dv, dp_du = np.gradient(p, axis=(0, 1))
-    n = np.cross(dp_du, dp_dv)
+    z = np.where(valid, depth_true_m, np.nan).astype(np.float32)
+    # Viewing ray r = ((u - cx) / fx, (v - cy) / fy, 1); the point is p = z * r.
+    rx = ((np.arange(w, dtype=np.float32) - intrinsics.cx) / intrinsics.fx)[None, :]
+    ry = ((np.arange(h, dtype=np.float32) - intrinsics.cy) / intrinsics.fy)[:, None]
+    z_v, z_u = np.gradient(z)
+    # Tangents dp/du = z_u r + (z / fx, 0, 0) and dp/dv = z_v r + (0, z / fy, 0).
+    ax, ay, az = z_u * rx + z / intrinsics.fx, z_u * ry, z_u
+    bx, by, bz = z_v * rx, z_v * ry + z / intrinsics.fy, z_v
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
     with np.errstate(invalid="ignore", divide="ignore"):
-        cos_angle = np.abs(np.sum(n * p, axis=-1)) / (np.linalg.norm(n, axis=-1) * np.linalg.norm(p, axis=-1))
+        cos_angle = np.abs(nx * rx + ny * ry + nz) / np.sqrt(
+            (nx * nx + ny * ny + nz * nz) * (rx * rx + ry * ry + 1.0)
+        )
         keep = cos_angle >= np.cos(np.radians(grazing_angle_deg))  # NaN compares False
     return ~keep
 
@@ -93,13 +96,13 @@ def apply_depth_models(
         z = bias.scale * z + bias.offset_m
 
     if noise.depth.enabled:
-        z = z + depth_sigma(z_true, noise.depth) * rng.standard_normal(z.shape)
+        z = z + depth_sigma(z_true, noise.depth) * rng.standard_normal(z.shape, dtype=np.float32)
 
     invalid = noise.invalid_depth
     if invalid.enabled:
         valid &= ~_grazing_mask(depth_true_m, valid, intrinsics, invalid.grazing_angle_deg)
         if invalid.dropout_fraction > 0.0:
-            valid &= rng.random(z.shape) >= invalid.dropout_fraction
+            valid &= rng.random(z.shape, dtype=np.float32) >= invalid.dropout_fraction
 
     valid &= z > 0.0  # bias or noise may push a depth to or below zero
     z = np.where(valid, z, 0.0)
@@ -131,7 +134,7 @@ def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generat
             borderType=cv2.BORDER_REFLECT_101,
         )
     if settings.sigma > 0.0:
-        img = img + (settings.sigma * rng.standard_normal(img.shape)).astype(np.float32)
+        img += np.float32(settings.sigma) * rng.standard_normal(img.shape, dtype=np.float32)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 

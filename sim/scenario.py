@@ -8,11 +8,11 @@ fixed x, y, z axes: R = Rz(yaw) @ Ry(pitch) @ Rx(roll).
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from estimator.board import BoardDefinition, load_board

@@ -16,6 +16,10 @@ from sim.scenario import Scenario
 from sim.trajectory import Waypoint, paper_waypoints, read_waypoint_file, rotation_rich_waypoints
 
 
+class SimulationError(RuntimeError):
+    """A simulation produced nothing usable."""
+
+
 @dataclass
 class SimulationResult:
     out_dir: Path
@@ -79,7 +83,7 @@ def simulate(
                 truth.joints.append(frame_truth.joints)
                 frame_rgb.append(frame.rgb)
             if not frame_rgb:
-                raise RuntimeError("no waypoint could be used; see the reasons above")
+                raise SimulationError("no waypoint could be used; see the reasons above")
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
             extra = {
                 "simulation": {

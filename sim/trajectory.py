@@ -123,8 +123,9 @@ def read_waypoint_file(path: str | Path) -> list[Waypoint]:
         lines = [line for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
     except FileNotFoundError:
         raise WaypointFileError(f"{path}: waypoint file not found") from None
-    rows = list(csv.DictReader(lines))
-    header = set(rows[0].keys()) if rows else set()
+    reader = csv.DictReader(lines)
+    rows = list(reader)
+    header = set(reader.fieldnames or ())
     if set(POSE_COLUMNS) <= header:
         columns = POSE_COLUMNS
     elif set(JOINT_COLUMNS) <= header:

@@ -92,7 +92,7 @@ def test_wheel_metadata_and_entry_point(wheel: Path) -> None:
     meta = Parser().parsestr(_dist_info_file(wheel, "METADATA"))
     assert meta["Name"] == "hec"
     assert meta["Version"] == "0.1.0"
-    assert meta["Requires-Python"] == ">=3.10"
+    assert meta["Requires-Python"] == ">=3.11"
     requires = " ".join(meta.get_all("Requires-Dist") or [])
     assert "opencv-python-headless" in requires and "<5" in requires
 

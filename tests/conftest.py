@@ -1,0 +1,3 @@
+"""Choose the headless OpenGL backend before any test module imports mujoco."""
+
+import sim  # noqa: F401

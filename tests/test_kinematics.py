@@ -1,0 +1,82 @@
+"""The MJCF arms agree with UR's DH kinematics; the IK solves reachable poses within the limits."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from estimator.board import load_board
+from estimator.camera import CameraIntrinsics
+from estimator.geometry import invert, make_transform, pose_error
+from sim.kinematics import ROBOTS, forward, jacobian, solve_ik
+from sim.scene import ARM_PREFIX, build_cell, models_dir
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_mujoco_flange_matches_dh_forward_kinematics(robot: str) -> None:
+    cell = build_cell(
+        robot,
+        make_transform(np.eye(3), [0.0, 0.006, 0.04]),
+        CameraIntrinsics.from_fovy(640, 480, np.radians(42.5)),
+        load_board(models_dir() / "boards" / "hec_8qr.json"),
+        make_transform(np.eye(3), [0.0, -0.7, 0.45]),
+    )
+    data = mujoco.MjData(cell.model)
+    flange = cell.model.body(ARM_PREFIX + "flange").id
+    rng = np.random.default_rng(7)
+    kin = ROBOTS[robot]
+    for _ in range(200):
+        q = rng.uniform(kin.q_lower, kin.q_upper)
+        data.qpos[cell.joint_qpos_addresses()] = q
+        mujoco.mj_kinematics(cell.model, data)
+        T_world_flange = make_transform(data.xmat[flange].reshape(3, 3), data.xpos[flange])
+        dt, dr = pose_error(invert(cell.T_world_base) @ T_world_flange, forward(kin, q))
+        assert dt < 1e-6 and dr < 1e-6
+
+
+def test_base_frame_follows_the_paper_on_the_wall() -> None:
+    """Base +Z out of the wall (world -y), +Y up (world +z), +X right (world +x)."""
+    cell = build_cell(
+        "ur5",
+        np.eye(4),
+        CameraIntrinsics.from_fovy(640, 480, 0.7),
+        load_board(models_dir() / "boards" / "hec_8qr.json"),
+        make_transform(np.eye(3), [0.0, -0.7, 0.45]),
+    )
+    np.testing.assert_allclose(cell.T_world_base[:3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
+
+
+def test_jacobian_matches_finite_differences() -> None:
+    kin = ROBOTS["ur5"]
+    q = np.array([0.3, -1.2, 1.4, -0.5, 0.8, 0.2])
+    J = jacobian(kin, q)
+    eps = 1e-7
+    T0 = forward(kin, q)
+    for i in range(6):
+        dq = np.zeros(6)
+        dq[i] = eps
+        T1 = forward(kin, q + dq)
+        np.testing.assert_allclose((T1[:3, 3] - T0[:3, 3]) / eps, J[:3, i], atol=1e-6)
+        dR = T1[:3, :3] @ T0[:3, :3].T
+        omega = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]]) / (2 * eps)
+        np.testing.assert_allclose(omega, J[3:, i], atol=1e-6)
+
+
+def test_ik_reaches_random_reachable_poses_within_limits() -> None:
+    kin = ROBOTS["ur5"]
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        q_true = rng.uniform(-2.5, 2.5, 6)
+        target = forward(kin, q_true)
+        result = solve_ik(kin, target, q_true + rng.normal(0.0, 0.2, 6))
+        assert result.converged
+        assert np.all(result.q >= kin.q_lower) and np.all(result.q <= kin.q_upper)
+        dt, dr = pose_error(forward(kin, result.q), target)
+        assert dt < 1e-9 and dr < 1e-9
+
+
+def test_ik_reports_an_unreachable_pose() -> None:
+    kin = ROBOTS["ur5"]
+    target = make_transform(np.eye(3), [2.0, 0.0, 1.0])
+    assert not solve_ik(kin, target, np.zeros(6)).converged
