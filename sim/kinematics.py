@@ -73,14 +73,23 @@ def forward(kin: URKinematics, q: np.ndarray) -> np.ndarray:
 
 def jacobian(kin: URKinematics, q: np.ndarray) -> np.ndarray:
     """(6, 6) geometric Jacobian of the flange: rows (v, omega) in the base frame."""
-    frames = dh_frames(kin, q)
-    p_flange = frames[6][:3, 3]
-    J = np.empty((6, 6))
-    for i in range(6):
-        z = frames[i][:3, 2]
-        J[:3, i] = np.cross(z, p_flange - frames[i][:3, 3])
-        J[3:, i] = z
-    return J
+    return _jacobian_from_frames(dh_frames(kin, q))
+
+
+def _jacobian_from_frames(frames: np.ndarray) -> np.ndarray:
+    z_axes = frames[:6, :3, 2]
+    origins = frames[:6, :3, 3]
+    return np.vstack([np.cross(z_axes, frames[6, :3, 3] - origins).T, z_axes.T])
+
+
+def _rotation_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) of a (3, 3) rotation."""
+    skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    sin2 = np.linalg.norm(skew)
+    angle = np.arctan2(0.5 * sin2, 0.5 * (np.trace(R) - 1.0))
+    if angle > np.pi - 1e-3:
+        return Rotation.from_matrix(R).as_rotvec()
+    return skew * (0.5 if sin2 < 1e-12 else angle / sin2)
 
 
 @dataclass(frozen=True)
@@ -100,6 +109,7 @@ def solve_ik(
     max_step_rad: float = 0.3,
     tol: float = 1e-10,
     max_iterations: int = 300,
+    stall_window: int = 40,
 ) -> IKResult:
     """Damped least squares from q_seed toward the target flange pose.
 
@@ -109,15 +119,20 @@ def solve_ik(
     lower, upper = np.array(kin.q_lower), np.array(kin.q_upper)
     q = np.clip(np.asarray(q_seed, dtype=float), lower, upper)
     R_target, p_target = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    history: list[float] = []
     for iteration in range(max_iterations + 1):
-        T = forward(kin, q)
+        frames = dh_frames(kin, q)
+        T = frames[6]
         e_p = p_target - T[:3, 3]
-        e_r = Rotation.from_matrix(R_target @ T[:3, :3].T).as_rotvec()
-        if np.linalg.norm(e_p) < tol and np.linalg.norm(e_r) < tol:
+        e_r = _rotation_log(R_target @ T[:3, :3].T)
+        error = np.linalg.norm(e_p) + np.linalg.norm(e_r)
+        if error < tol or iteration == max_iterations:
             break
-        if iteration == max_iterations:
+        # Stop early when the error has not halved in the last stall_window iterations.
+        history.append(error)
+        if len(history) > stall_window and error > 0.5 * history[-stall_window - 1]:
             break
-        J = jacobian(kin, q)
+        J = _jacobian_from_frames(frames)
         e = np.concatenate([e_p, e_r])
         dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(6), e)
         largest = np.max(np.abs(dq))
