@@ -224,11 +224,14 @@ class SimCell:
             yield q
             return
         first = solve_ik(kin, waypoint.T_base_flange, self.joints)
+        tried = []
         if first.converged and np.max(np.abs(first.q - self.joints)) < 1.0:
+            tried.append(first.q)
             yield first.q
         solutions = [first.q] if first.converged else []
         for seed in _IK_SEEDS:
             result = solve_ik(kin, waypoint.T_base_flange, seed)
             if result.converged and not any(np.allclose(result.q, q, atol=1e-6) for q in solutions):
                 solutions.append(result.q)
-        yield from sorted(solutions, key=lambda q: float(np.max(np.abs(q - self.joints))))
+        remaining = [q for q in solutions if not any(q is t for t in tried)]
+        yield from sorted(remaining, key=lambda q: float(np.max(np.abs(q - self.joints))))
