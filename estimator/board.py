@@ -12,13 +12,14 @@ bottom-left of the upright symbol (finder patterns at corners 0, 1 and 3).
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import qrcode
+
+from estimator.jsonfile import read_json_object
 
 _ERROR_CORRECTION = {
     "L": qrcode.constants.ERROR_CORRECT_L,
@@ -183,14 +184,7 @@ def _kind_name(kind: type | tuple[type, ...]) -> str:
 def load_board(path: str | Path) -> BoardDefinition:
     """Read a board definition file; errors name the file and the field."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise BoardDefinitionError(f"{path}: board definition file not found") from None
-    except json.JSONDecodeError as exc:
-        raise BoardDefinitionError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise BoardDefinitionError(f"{path}: expected a JSON object")
+    data = read_json_object(path, BoardDefinitionError, "board definition file not found")
     return BoardDefinition.from_dict(data, source=str(path))
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from estimator.board import BoardDefinition, BoardDefinitionError, load_board
 from estimator.camera import CameraIntrinsics
 from estimator.geometry import transform_from_xyz_quat, xyz_quat_from_transform
+from estimator.jsonfile import read_json_object
 
 UINT16_MAX = 65535
 FORMAT = "hec-dataset"
@@ -261,25 +262,13 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     return image
 
 
-def _read_json(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file missing") from None
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise DatasetError(f"{path}: expected a JSON object")
-    return data
-
-
 def load_dataset(path: str | Path) -> Dataset:
     """Open and validate a dataset folder; errors name the file and the field."""
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such dataset folder")
     meta_path = root / "dataset.json"
-    meta = _read_json(meta_path)
+    meta = read_json_object(meta_path, DatasetError)
     if meta.get("format") != FORMAT:
         raise DatasetError(f"{meta_path}: field 'format' should be {FORMAT!r}, got {meta.get('format')!r}")
     if meta.get("version") != VERSION:
@@ -302,7 +291,7 @@ def load_dataset(path: str | Path) -> Dataset:
         )
     truth = None
     if meta.get("ground_truth_file"):
-        gt = _read_json(root / meta["ground_truth_file"])
+        gt = read_json_object(root / meta["ground_truth_file"], DatasetError)
         try:
             truth = GroundTruth(
                 np.array(gt["T_flange_cam"]),

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.board import BoardDefinitionError, load_board
+from estimator.board import BoardDefinitionError
 from estimator.dataset import DatasetError
 from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
 
@@ -63,13 +63,6 @@ def _print_simulation(result: object, T_flange_cam: np.ndarray) -> None:
         print(f"preview: {path}")
 
 
-def _board_from_arg(name: str):
-    from sim.scene import models_dir
-
-    named = models_dir() / "boards" / f"{name}.json"
-    return load_board(named if named.is_file() else Path(name))
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="hec", description="Eye-in-hand calibration testbench and tool.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -80,8 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "board":
             from experiments.printable import save_printable_board
+            from sim.scene import find_board
 
-            path = save_printable_board(_board_from_arg(args.board), args.out, args.dpi)
+            path = save_printable_board(find_board(args.board), args.out, args.dpi)
             print(f"wrote {path} at {args.dpi:g} dpi: print at 100% scale and check the 100 mm bar")
             return 0
         from sim.scenario import ScenarioError, load_scenario

@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from estimator.board import BoardDefinition, load_board
+from estimator.board import BoardDefinition
 from estimator.camera import CameraIntrinsics
 from estimator.geometry import transform_from_xyz_rpy
 
@@ -186,12 +186,9 @@ class Scenario(_Section):
 
     def board_definition(self) -> BoardDefinition:
         """A board name in models/boards/, or a JSON path relative to the scenario."""
-        from sim.scene import models_dir
+        from sim.scene import find_board
 
-        named = models_dir() / "boards" / f"{self.board.definition}.json"
-        if named.is_file():
-            return load_board(named)
-        return load_board(Path(self.base_dir) / self.board.definition)
+        return find_board(self.board.definition, Path(self.base_dir))
 
     def waypoint_file(self) -> Path | None:
         return None if self.trajectory.file is None else Path(self.base_dir) / self.trajectory.file

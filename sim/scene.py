@@ -20,7 +20,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from estimator.board import BoardDefinition, board_image
+from estimator.board import BoardDefinition, board_image, load_board
 from estimator.camera import CameraIntrinsics
 from estimator.geometry import invert, make_transform, xyz_quat_from_transform
 from sim.kinematics import ROBOTS, URKinematics
@@ -44,6 +44,12 @@ def models_dir() -> Path:
 
     # hec_models is a namespace package: ask for a file in it to get a real folder.
     return Path(str(files("hec_models").joinpath("cell.xml"))).parent
+
+
+def find_board(name: str, base_dir: Path = Path(".")) -> BoardDefinition:
+    """A board named in models/boards/ (without .json), else a JSON path relative to base_dir."""
+    named = models_dir() / "boards" / f"{name}.json"
+    return load_board(named if named.is_file() else base_dir / name)
 
 
 @dataclass

@@ -1,0 +1,20 @@
+"""Reading JSON files whose errors name the file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def read_json_object(path: Path, error: type[Exception], missing: str = "file missing") -> dict:
+    """The JSON object in ``path``; raises ``error`` naming the file when it is
+    missing (with the words ``missing``), not JSON, or not an object."""
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise error(f"{path}: {missing}") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a JSON object")
+    return data
