@@ -12,6 +12,7 @@ bottom-left of the upright symbol (finder patterns at corners 0, 1 and 3).
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,15 +85,8 @@ class BoardDefinition:
         return np.stack([self.marker_corners(i) for i in self.marker_ids])
 
     def module_matrix(self, marker_id: int) -> np.ndarray:
-        """(n, n) bool, True where the symbol is dark; row 0 is the symbol's top."""
-        qr = qrcode.QRCode(
-            version=self.qr_version,
-            error_correction=_ERROR_CORRECTION[self.qr_error_correction],
-            border=0,
-        )
-        qr.add_data(self.payload(marker_id))
-        qr.make(fit=False)
-        return np.array(qr.get_matrix(), dtype=bool)
+        """(n, n) bool, True where the symbol is dark; row 0 is the symbol's top. Read-only."""
+        return _qr_modules(self.payload(marker_id), self.qr_version, self.qr_error_correction)
 
     def to_dict(self) -> dict:
         return {
@@ -173,6 +167,17 @@ class BoardDefinition:
             for j, (ox, oy) in self.marker_centers_m.items():
                 if j > i and abs(cx - ox) < 2 * pad - 1e-12 and abs(cy - oy) < 2 * pad - 1e-12:
                     raise BoardDefinitionError(f"{source}: markers {i} and {j} overlap their quiet zones")
+
+
+@functools.lru_cache(maxsize=1024)
+def _qr_modules(payload: str, version: int, error_correction: str) -> np.ndarray:
+    """The module matrix of one QR symbol (cached: encoding costs milliseconds)."""
+    qr = qrcode.QRCode(version=version, error_correction=_ERROR_CORRECTION[error_correction], border=0)
+    qr.add_data(payload)
+    qr.make(fit=False)
+    modules = np.array(qr.get_matrix(), dtype=bool)
+    modules.flags.writeable = False
+    return modules
 
 
 def _kind_name(kind: type | tuple[type, ...]) -> str:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 
@@ -80,3 +81,60 @@ def project_points(T_cam_board: np.ndarray, p_board: np.ndarray, K: np.ndarray) 
     p_cam = p_board @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     uvw = p_cam @ K.T
     return uvw[:, :2] / uvw[:, 2:3]
+
+
+def distort_normalized(xy: np.ndarray, dist: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's distortion (k1, k2, p1, p2, k3) of normalised image points, with its Jacobian.
+
+    xy: (N, 2) undistorted normalised coordinates (x/z, y/z).
+    Returns (N, 2) distorted normalised coordinates and (N, 2, 2) d(distorted)/d(xy).
+    """
+    k1, k2, p1, p2, k3 = (tuple(dist) + (0.0,) * 5)[:5]
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    jac = np.empty((len(x), 2, 2))
+    jac[:, 0, 0] = radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x
+    jac[:, 0, 1] = 2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
+    jac[:, 1, 0] = 2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
+    jac[:, 1, 1] = radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + 2.0 * p2 * x
+    return np.column_stack([xd, yd]), jac
+
+
+def pixel_rays(uv: np.ndarray, intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Viewing rays of pixels, scaled to z = 1, and their Jacobian.
+
+    uv: (N, 2) pixel coordinates in the (distorted) image.
+    Returns (N, 3) rays (x/z, y/z, 1) in the camera frame and (N, 3, 2) d(ray)/d(uv).
+    """
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    k = intrinsics
+    xy_distorted = np.column_stack([(uv[:, 0] - k.cx) / k.fx, (uv[:, 1] - k.cy) / k.fy])
+    if any(k.dist):
+        xy = cv2.undistortPoints(
+            uv.reshape(-1, 1, 2),
+            k.K,
+            np.array(k.dist),
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12),
+        ).reshape(-1, 2)
+        _, d_distorted_d_xy = distort_normalized(xy, k.dist)
+        d_xy_d_distorted = np.linalg.inv(d_distorted_d_xy)
+    else:
+        xy = xy_distorted
+        d_xy_d_distorted = np.broadcast_to(np.eye(2), (len(uv), 2, 2))
+    jac = np.zeros((len(uv), 3, 2))
+    jac[:, :2, :] = d_xy_d_distorted * np.array([1.0 / k.fx, 1.0 / k.fy])[None, None, :]
+    return np.column_stack([xy, np.ones(len(uv))]), jac
+
+
+def back_project(uv: np.ndarray, z_m: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
+    """Camera-frame points from pixels and depth along the optical axis.
+
+    The paper's x = z (u - cx) / fx, y = z (v - cy) / fy, with distortion removed first.
+    uv: (N, 2) pixels. z_m: (N,) depth, metres. Returns (N, 3) metres, camera frame.
+    """
+    rays, _ = pixel_rays(uv, intrinsics)
+    return rays * np.asarray(z_m, dtype=np.float64).reshape(-1, 1)

@@ -32,6 +32,9 @@ ARM_PREFIX = "arm/"
 # Rotation taking OpenCV's camera axes to MuJoCo's (x right, y up, looking along -z).
 R_CAM_MJCAM = np.diag([1.0, -1.0, -1.0])
 BOARD_TEXTURE_PX_PER_M = 4000.0
+# Printed reflectance of the board's paper and ink (the texture's white and black).
+PAPER_REFLECTANCE = 0.85
+INK_REFLECTANCE = 0.06
 # Robot and camera geoms collide with the cell (contype 1), not with each other.
 _ROBOT_CONTYPE = 1
 
@@ -160,8 +163,11 @@ def _add_camera(flange: mujoco.MjsBody, T_flange_cam: np.ndarray, k: CameraIntri
 
 def _add_board(spec: mujoco.MjSpec, board: BoardDefinition, T_world_board: np.ndarray) -> None:
     """The printed sheet as a textured quad at z = 0 of the board frame, on a backing plate."""
-    image = board_image(board, BOARD_TEXTURE_PX_PER_M)
-    rgb = np.repeat(image[:, :, None], 3, axis=2)
+    # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
+    # inside 8 bits and the camera's noise is not clipped away.
+    coverage = board_image(board, BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
+    image = np.round(255.0 * (INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * coverage))
+    rgb = np.repeat(image.astype(np.uint8)[:, :, None], 3, axis=2)
     spec.add_texture(
         name="board",
         type=mujoco.mjtTexture.mjTEXTURE_2D,
