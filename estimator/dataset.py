@@ -4,7 +4,9 @@ One format serves the simulator, the real cell and imports. A dataset is a
 folder a person can open without this project::
 
     dataset.json        format, version, source, frame count, camera intrinsics,
-                        depth scale, and (simulation) seed, scenario, skipped waypoints
+                        depth scale, the depth noise model ('depth_noise', see
+                        estimator.depth.DepthNoiseModel; optional) and (simulation)
+                        seed, scenario, skipped waypoints
     board.json          the board definition (hec-board v1)
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported
                         T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad
@@ -12,6 +14,8 @@ folder a person can open without this project::
     depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
     ground_truth.json   simulation only: T_flange_cam, T_base_board, T_world_base
                         and per frame the true T_base_flange and joints
+    detections.json     optional cache written by `hec detect` (estimator.observations)
+    overlay/NNNNNN.png  optional detection pictures written by `hec detect --overlay`
 
 Depth is aligned to the colour image and shares its intrinsics. A dataset
 is written into a temporary sibling folder and renamed into place when it is

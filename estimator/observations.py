@@ -48,7 +48,8 @@ class MarkerObservation:
     depth_m (5,), depth_cov (5, 5): depth along the optical axis at the five points
     (correlated: one plane). points_cam (5, 3), points_cov (5, 3, 3): the points in the
     camera frame, metres, each with its own covariance. Depth fields are None when the
-    marker has no usable depth; depth_note then says why.
+    marker has no usable depth; depth_note then says why. quality: correlation of the
+    aligned code (0..1); found_by: the decoding pass; raw_corners_px: the decoder's corners.
     """
 
     marker_id: int
@@ -58,6 +59,7 @@ class MarkerObservation:
     center_cov: np.ndarray
     quality: float
     found_by: str
+    raw_corners_px: np.ndarray | None = None
     depth_m: np.ndarray | None = None
     depth_cov: np.ndarray | None = None
     points_cam: np.ndarray | None = None
@@ -139,6 +141,7 @@ def observe_frame(
             det.center_cov,
             det.quality,
             det.found_by,
+            det.raw_corners_px,
         )
         if no_depth is not None:
             marker.depth_note = no_depth
@@ -231,6 +234,7 @@ def _marker_to_dict(m: MarkerObservation) -> dict:
         "center_cov": _array(m.center_cov),
         "quality": m.quality,
         "found_by": m.found_by,
+        "raw_corners_px": _array(m.raw_corners_px),
         "depth_m": _array(m.depth_m),
         "depth_cov": _array(m.depth_cov),
         "points_cam": _array(m.points_cam),
@@ -323,6 +327,7 @@ def _frame_from_dict(f: dict) -> FrameObservations:
             center_cov=np.array(m["center_cov"]),
             quality=float(m["quality"]),
             found_by=m["found_by"],
+            raw_corners_px=_opt(m.get("raw_corners_px")),
             depth_m=_opt(m["depth_m"]),
             depth_cov=_opt(m["depth_cov"]),
             points_cam=_opt(m["points_cam"]),

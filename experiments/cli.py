@@ -29,6 +29,22 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _add_detect(sub: argparse._SubParsersAction) -> None:
+    from estimator.detect import DEFAULT_PASSES
+
+    p = sub.add_parser(
+        "detect", help="detect the board in a dataset, cache the observations (DATASET/detections.json)"
+    )
+    p.add_argument("dataset", type=Path, help="dataset folder")
+    p.add_argument("--overlay", action="store_true", help="also write DATASET/overlay/NNNNNN.png")
+    p.add_argument(
+        "--passes",
+        default=",".join(DEFAULT_PASSES),
+        help="decoding passes BACKEND@SCALE in order; back-ends zxing, pyzbar, opencv (default: %(default)s)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def _add_board(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("board", help="write a true-scale printable board (PNG or PDF)")
     p.add_argument("--out", required=True, type=Path, help="board.pdf or board.png")
@@ -68,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_demo(sub)
     _add_simulate(sub)
+    _add_detect(sub)
     _add_board(sub)
     args = parser.parse_args(argv)
     try:
@@ -77,6 +94,12 @@ def main(argv: list[str] | None = None) -> int:
 
             path = save_printable_board(find_board(args.board), args.out, args.dpi)
             print(f"wrote {path} at {args.dpi:g} dpi: print at 100% scale and check the 100 mm bar")
+            return 0
+        if args.command == "detect":
+            from experiments.detection import run_detect
+
+            passes = tuple(p.strip() for p in args.passes.split(",") if p.strip())
+            run_detect(args.dataset, args.overlay, passes, args.quiet)
             return 0
         from sim.scenario import ScenarioError, load_scenario
         from sim.simulate import SimulationError, simulate
@@ -94,6 +117,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"hec: error: {exc}", file=sys.stderr)
             return 2
         _print_simulation(result, scenario.mount.transform())
+        if args.command == "demo":
+            from experiments.detection import run_detect
+
+            print()
+            run_detect(result.out_dir, overlay=True, quiet=True)
         return 0
     except USER_ERRORS as exc:
         print(f"hec: error: {exc}", file=sys.stderr)

@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from estimator.camera import CameraIntrinsics
 from estimator.dataset import decode_depth, encode_depth
+from estimator.depth import DepthNoiseModel
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
@@ -31,6 +32,19 @@ def depth_sigma(z_m: np.ndarray, settings: DepthNoise) -> np.ndarray:
     """
     z = np.asarray(z_m, dtype=np.float64)
     return z * z * (settings.subpixel / (settings.focal_px * settings.baseline_m))
+
+
+def depth_noise_model(noise: NoiseSettings) -> DepthNoiseModel:
+    """The per-pixel depth noise these settings produce, as the measurement layer models it
+    (written to dataset.json as 'depth_noise'). Pixels are independent (correlation 1 px)."""
+    depth = noise.depth
+    return DepthNoiseModel(
+        subpixel=depth.subpixel if depth.enabled else 0.0,
+        baseline_m=depth.baseline_m,
+        focal_px=depth.focal_px,
+        depth_step_m=noise.depth_quantisation.depth_scale_m,
+        correlation_px=1.0,
+    )
 
 
 def _valid_mask(depth_m: np.ndarray) -> np.ndarray:

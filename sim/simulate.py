@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from estimator.dataset import DatasetWriter, GroundTruth
 from sim.cell import SimCell, WaypointRejected
+from sim.noise import depth_noise_model
 from sim.preview import write_preview
 from sim.scenario import Scenario
 from sim.trajectory import Waypoint, paper_waypoints, read_waypoint_file, rotation_rich_waypoints
@@ -86,12 +87,13 @@ def simulate(
                 raise SimulationError("no waypoint could be used; see the reasons above")
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
             extra = {
+                "depth_noise": depth_noise_model(scenario.noise).to_dict(),
                 "simulation": {
                     "seed": seed,
                     "scenario": scenario.to_dict(),
                     "waypoints": len(waypoints),
                     "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
-                }
+                },
             }
             final = writer.finish(truth, extra)
     finally:

@@ -1,0 +1,104 @@
+"""`hec detect`: detect the board in every frame of a dataset, cache the observations, and report."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from estimator.dataset import Dataset, DatasetError, load_dataset
+from estimator.detect import DEFAULT_PASSES, DetectorSettings
+from estimator.grading import grade_observations
+from estimator.observations import (
+    FrameObservations,
+    dataset_depth_noise,
+    observe_dataset,
+    save_observations,
+)
+from estimator.overlay import draw_overlay
+
+OVERLAY_DIR = "overlay"
+
+
+def _frame_row(obs: FrameObservations, board_ids: list[int]) -> str:
+    found = sorted(m.marker_id for m in obs.markers)
+    missing = [i for i in board_ids if i not in found]
+    if obs.markers:
+        corner_sigma = np.median([np.sqrt(np.diag(m.corners_cov)).mean() for m in obs.markers])
+        with_depth = [m for m in obs.markers if m.depth_cov is not None]
+        depth_sigma = (
+            f"{1000 * np.median([np.sqrt(m.depth_cov[0, 0]) for m in with_depth]):7.3f}"
+            if with_depth
+            else "    -  "
+        )
+        sigmas = f"{corner_sigma:7.4f} {depth_sigma}"
+    else:
+        sigmas = "   -       -   "
+    note = obs.problem or "; ".join([*obs.notes, *(r.reason for r in obs.rejected)])
+    return (
+        f"{obs.frame:5d} {len(found):3d}/{len(board_ids):<3d} {','.join(map(str, missing)) or '-':>9} "
+        f"{sigmas}  {','.join(obs.passes_run) or '-':<16} {note}"
+    )
+
+
+def _write_overlays(dataset: Dataset, observations: list[FrameObservations], quiet: bool) -> Path:
+    out = dataset.root / OVERLAY_DIR
+    out.mkdir(exist_ok=True)
+    for obs in tqdm(observations, desc="overlays", unit="frame", disable=quiet, file=sys.stderr):
+        try:
+            rgb = dataset.frame(obs.frame).rgb
+        except DatasetError:
+            rgb = np.zeros((dataset.intrinsics.height, dataset.intrinsics.width, 3), np.uint8)
+        picture = cv2.cvtColor(draw_overlay(rgb, obs), cv2.COLOR_RGB2BGR)
+        path = out / f"{obs.frame:06d}.png"
+        tmp = path.with_name(f".{path.name}.partial.png")
+        cv2.imwrite(str(tmp), picture)
+        tmp.replace(path)
+    return out
+
+
+def run_detect(
+    dataset_path: Path, overlay: bool = False, passes: tuple[str, ...] = DEFAULT_PASSES, quiet: bool = False
+) -> list[FrameObservations]:
+    """Detect every frame, write DATASET/detections.json (and overlays), print the per-frame table."""
+    dataset = load_dataset(dataset_path)
+    settings = DetectorSettings(passes=passes)
+    depth_noise = dataset_depth_noise(dataset)
+    if "depth_noise" not in dataset.metadata:
+        print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
+    start = time.perf_counter()
+    with tqdm(total=len(dataset), desc="detect", unit="frame", disable=quiet, file=sys.stderr) as bar:
+        observations = observe_dataset(dataset, settings, depth_noise, progress=lambda i, o: bar.update())
+    elapsed = time.perf_counter() - start
+    cache = save_observations(dataset.root, observations, settings, depth_noise)
+    board_ids = dataset.board.marker_ids
+    print("frame found   missing corner_sd depth_sd  passes           notes")
+    print("                       [px]      [mm]")
+    for obs in observations:
+        print(_frame_row(obs, board_ids))
+    markers = sum(len(o.markers) for o in observations)
+    skipped = sum(o.problem is not None for o in observations)
+    print(
+        f"{len(observations)} frames ({skipped} skipped), {markers} markers, "
+        f"{sum(len(o.rejected) for o in observations)} rejected; "
+        f"{1000 * elapsed / max(len(observations), 1):.1f} ms per frame with image loading"
+    )
+    print(f"observations: {cache}")
+    if overlay:
+        print(f"overlays: {_write_overlays(dataset, observations, quiet)}/")
+    if dataset.ground_truth is not None:
+        s = grade_observations(
+            observations, dataset.ground_truth, dataset.board, dataset.intrinsics
+        ).summary()
+        print(
+            f"vs ground truth: {s['detected_visible']}/{s['visible_markers']} fully visible markers detected"
+            f" ({s['wrong_id']} with a wrong ID); corner RMS {s['corner_rms_px']:.4f} px"
+            f" (decoders {s['raw_corner_rms_px']:.3f} px); marker-centre 3D RMS {s['center_rms_mm']:.4f} mm;"
+            f" normalised errors (1 = honest): corners {s['corner_nees']:.2f},"
+            f" centre 3D {s['center_point_nees']:.2f}, all 3D points {s['point_nees']:.2f}"
+        )
+    return observations
