@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 
@@ -83,6 +82,9 @@ def project_points(T_cam_board: np.ndarray, p_board: np.ndarray, K: np.ndarray) 
     return uvw[:, :2] / uvw[:, 2:3]
 
 
+UNDISTORT_ITERATIONS = 30
+
+
 def distort_normalized(xy: np.ndarray, dist: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's distortion (k1, k2, p1, p2, k3) of normalised image points, with its Jacobian.
 
@@ -114,12 +116,13 @@ def pixel_rays(uv: np.ndarray, intrinsics: CameraIntrinsics) -> tuple[np.ndarray
     k = intrinsics
     xy_distorted = np.column_stack([(uv[:, 0] - k.cx) / k.fx, (uv[:, 1] - k.cy) / k.fy])
     if any(k.dist):
-        xy = cv2.undistortPoints(
-            uv.reshape(-1, 1, 2),
-            k.K,
-            np.array(k.dist),
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12),
-        ).reshape(-1, 2)
+        xy = xy_distorted.copy()  # Newton on distort(xy) = xy_distorted
+        for _ in range(UNDISTORT_ITERATIONS):
+            distorted, d_distorted_d_xy = distort_normalized(xy, k.dist)
+            step = np.linalg.solve(d_distorted_d_xy, (distorted - xy_distorted)[:, :, None])[:, :, 0]
+            xy -= step
+            if np.abs(step).max() < 1e-15:
+                break
         _, d_distorted_d_xy = distort_normalized(xy, k.dist)
         d_xy_d_distorted = np.linalg.inv(d_distorted_d_xy)
     else:

@@ -127,6 +127,8 @@ def parse_pass(spec: str) -> tuple[str, int]:
 def to_gray(image: np.ndarray) -> np.ndarray:
     """(H, W) uint8 grey from an (H, W) or (H, W, 3) RGB uint8 image; ValueError otherwise."""
     image = np.asarray(image)
+    if image.size == 0:
+        raise ValueError(f"image is empty (shape {image.shape})")
     if image.dtype != np.uint8:
         raise ValueError(f"expected an 8-bit image, got dtype {image.dtype}")
     if image.ndim == 2:

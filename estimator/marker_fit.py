@@ -59,11 +59,14 @@ class MarkerFitError(ValueError):
 def homography_from_corners(corners_px: np.ndarray) -> np.ndarray:
     """(3, 3) homography mapping symbol coordinates (a, b, 1) to pixels, H[2, 2] = 1.
 
-    corners_px: (4, 2) image corners in the marker's order.
+    corners_px: (4, 2) image corners in the marker's order. Solved in float64.
     """
-    return cv2.getPerspectiveTransform(
-        UNIT_SQUARE.astype(np.float32), np.asarray(corners_px, np.float32)
-    ).astype(np.float64)
+    corners_px = np.asarray(corners_px, dtype=np.float64)
+    A = np.zeros((8, 8))
+    for k, ((a, b), (u, v)) in enumerate(zip(UNIT_SQUARE, corners_px, strict=True)):
+        A[2 * k] = [a, b, 1.0, 0.0, 0.0, 0.0, -a * u, -b * u]
+        A[2 * k + 1] = [0.0, 0.0, 0.0, a, b, 1.0, -a * v, -b * v]
+    return np.append(np.linalg.solve(A, corners_px.ravel()), 1.0).reshape(3, 3)
 
 
 def apply_homography(H: np.ndarray, ab: np.ndarray) -> np.ndarray:
