@@ -11,10 +11,11 @@ The fit:
 2. ``fit_marker``: a homography from the symbol to the image is refined by
    maximising the enhanced correlation coefficient (OpenCV's findTransformECC,
    invariant to gain and offset) between the template and the image.
-3. The corners' 8x8 covariance is the Gauss-Newton one,
-   sigma^2 (J^T J)^-1, where J is the image gradient times the derivative of
-   each pixel's position with respect to the corners and sigma^2 is the
-   residual variance of the fitted model image.
+3. The corners' 8x8 covariance is the Gauss-Newton one, sigma^2 (J^T J)^-1,
+   where J is the fitted model's gradient times the derivative of each
+   pixel's position with respect to the corners and sigma is the image noise
+   measured in the marker's flat parts, plus a floor per coordinate for the
+   errors image noise does not explain (DEFAULT_*_FLOOR_PX).
 
 Symbol coordinates (a, b): a along the top edge from corner 0 to corner 1,
 b along the left edge from corner 0 to corner 3, both in units of the symbol
@@ -103,8 +104,7 @@ def center_from_corners(corners_px: np.ndarray) -> np.ndarray:
 def _bilinear(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Sample a grey image at (..., 2) pixel positions; outside the image gives NaN."""
     flat = uv.reshape(-1, 2).astype(np.float32)
-    h, w = gray.shape
-    values = cv2.remap(
+    return cv2.remap(
         gray if gray.dtype == np.float32 else gray.astype(np.float32),
         flat[:, 0:1],
         flat[:, 1:2],
@@ -112,7 +112,6 @@ def _bilinear(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=np.nan,
     ).reshape(uv.shape[:-1])
-    return values
 
 
 def module_agreement(gray: np.ndarray, corners_px: np.ndarray, modules: np.ndarray) -> float:
@@ -239,7 +238,7 @@ def fit_marker(
     return MarkerFit(
         corners_px=refined,
         corners_cov=noise_cov + corner_floor_px**2 * np.eye(8),
-        center_px=apply_homography(H_img_ab, np.array([[0.5, 0.5]]))[0],
+        center_px=center_from_corners(refined),
         center_cov=J_center @ noise_cov @ J_center.T + center_floor_px**2 * np.eye(2),
         correlation=float(correlation),
         module_agreement=module_agreement(gray, refined, modules),
