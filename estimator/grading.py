@@ -113,8 +113,7 @@ def grade_observations(
                 continue
             errors.found_visible += int(visible)
             errors.corner_errors_px.append(corner_error)
-            if marker.raw_corners_px is not None:
-                errors.raw_corner_errors_px.append(marker.raw_corners_px - true_corners)
+            errors.raw_corner_errors_px.append(marker.raw_corners_px - true_corners)
             for k in range(4):
                 cov = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
                 errors.corner_nees.append(

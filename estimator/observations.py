@@ -20,7 +20,7 @@ import hashlib
 import json
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import Field, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,7 @@ import numpy as np
 from estimator.camera import CameraIntrinsics, pixel_rays
 from estimator.dataset import Dataset, DatasetError, Frame
 from estimator.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
-from estimator.detect import BLURRED_SHARPNESS, DetectorSettings, QRDetector, Rejection
+from estimator.detect import BLURRED_SHARPNESS, DetectorSettings, MarkerDetection, QRDetector, Rejection
 from estimator.jsonfile import read_json_object
 
 CACHE_FILE = "detections.json"
@@ -40,37 +40,23 @@ class ObservationCacheError(ValueError):
     """A detections cache is missing, malformed or stale."""
 
 
-@dataclass
-class MarkerObservation:
-    """One marker in one frame. Points are (centre, corner 0..3).
+@dataclass(frozen=True)
+class MarkerObservation(MarkerDetection):
+    """One marker in one frame: its detection (estimator.detect.MarkerDetection) plus depth.
 
-    corners_px (4, 2), corners_cov (8, 8); center_px (2,), center_cov (2, 2): pixels.
-    depth_m (5,), depth_cov (5, 5): depth along the optical axis at the five points
-    (correlated: one plane). points_cam (5, 3), points_cov (5, 3, 3): the points in the
-    camera frame, metres, each with its own covariance. Depth fields are None when the
-    marker has no usable depth; depth_note then says why. quality: correlation of the
-    aligned code (0..1); found_by: the decoding pass; raw_corners_px: the decoder's corners.
+    Points are (centre, corner 0..3). depth_m (5,), depth_cov (5, 5): depth along the
+    optical axis at the five points (correlated: one plane). points_cam (5, 3),
+    points_cov (5, 3, 3): the points in the camera frame, metres, each with its own
+    covariance. Depth fields are None when the marker has no usable depth; depth_note
+    then says why. depth_pixels: inlier, valid and total pixel counts under the marker.
     """
 
-    marker_id: int
-    corners_px: np.ndarray
-    corners_cov: np.ndarray
-    center_px: np.ndarray
-    center_cov: np.ndarray
-    quality: float
-    found_by: str
-    raw_corners_px: np.ndarray | None = None
     depth_m: np.ndarray | None = None
     depth_cov: np.ndarray | None = None
     points_cam: np.ndarray | None = None
     points_cov: np.ndarray | None = None
     depth_note: str | None = None
     depth_pixels: dict = field(default_factory=dict)
-
-    @property
-    def points_px(self) -> np.ndarray:
-        """(5, 2) the centre then the corners, pixels."""
-        return np.vstack([self.center_px, self.corners_px])
 
 
 @dataclass
@@ -133,33 +119,24 @@ def observe_frame(
     if no_depth is not None:
         obs.notes.append(f"{no_depth}; markers kept without depth")
     for det in detections.markers:
-        marker = MarkerObservation(
-            det.marker_id,
-            det.corners_px,
-            det.corners_cov,
-            det.center_px,
-            det.center_cov,
-            det.quality,
-            det.found_by,
-            det.raw_corners_px,
+        depth = (
+            {"depth_note": no_depth}
+            if no_depth
+            else _depth(det, frame.depth_m, frame.intrinsics, depth_noise)
         )
-        if no_depth is not None:
-            marker.depth_note = no_depth
-        else:
-            _add_depth(marker, frame.depth_m, frame.intrinsics, depth_noise)
-        obs.markers.append(marker)
+        obs.markers.append(MarkerObservation(**{f.name: getattr(det, f.name) for f in fields(det)}, **depth))
     return obs
 
 
-def _add_depth(
-    marker: MarkerObservation, depth_m: np.ndarray, intrinsics: CameraIntrinsics, noise: DepthNoiseModel
-) -> None:
+def _depth(
+    marker: MarkerDetection, depth_m: np.ndarray, intrinsics: CameraIntrinsics, noise: DepthNoiseModel
+) -> dict:
+    """The depth fields of MarkerObservation for one detected marker."""
     try:
         plane = fit_marker_depth(depth_m, marker.corners_px, noise)
     except DepthFitError as exc:
-        marker.depth_note = str(exc)
-        return
-    uv = marker.points_px
+        return {"depth_note": str(exc)}
+    uv = np.vstack([marker.center_px, marker.corners_px])
     z, z_cov = plane.depth_at(uv)
     rays, d_ray_d_uv = pixel_rays(uv, intrinsics)
     uv_cov = np.zeros((5, 2, 2))
@@ -170,11 +147,13 @@ def _add_depth(
     points_cov = d_p_d_uv @ uv_cov @ d_p_d_uv.transpose(0, 2, 1) + np.diag(z_cov)[:, None, None] * (
         rays[:, :, None] * rays[:, None, :]
     )
-    marker.depth_m = z
-    marker.depth_cov = z_cov
-    marker.points_cam = rays * z[:, None]
-    marker.points_cov = points_cov
-    marker.depth_pixels = {"inliers": plane.inliers, "valid": plane.valid, "pixels": plane.pixels}
+    return {
+        "depth_m": z,
+        "depth_cov": z_cov,
+        "points_cam": rays * z[:, None],
+        "points_cov": points_cov,
+        "depth_pixels": {"inliers": plane.inliers, "valid": plane.valid, "pixels": plane.pixels},
+    }
 
 
 def dataset_depth_noise(dataset: Dataset) -> DepthNoiseModel:
@@ -225,22 +204,13 @@ def _array(a: np.ndarray | None) -> list | None:
     return None if a is None else np.asarray(a, dtype=np.float64).tolist()
 
 
+def _is_array_field(f: Field) -> bool:
+    return "ndarray" in str(f.type)
+
+
 def _marker_to_dict(m: MarkerObservation) -> dict:
     return {
-        "marker_id": m.marker_id,
-        "corners_px": _array(m.corners_px),
-        "corners_cov": _array(m.corners_cov),
-        "center_px": _array(m.center_px),
-        "center_cov": _array(m.center_cov),
-        "quality": m.quality,
-        "found_by": m.found_by,
-        "raw_corners_px": _array(m.raw_corners_px),
-        "depth_m": _array(m.depth_m),
-        "depth_cov": _array(m.depth_cov),
-        "points_cam": _array(m.points_cam),
-        "points_cov": _array(m.points_cov),
-        "depth_note": m.depth_note,
-        "depth_pixels": m.depth_pixels,
+        f.name: _array(getattr(m, f.name)) if _is_array_field(f) else getattr(m, f.name) for f in fields(m)
     }
 
 
@@ -320,20 +290,10 @@ def load_observations(
 def _frame_from_dict(f: dict) -> FrameObservations:
     markers = [
         MarkerObservation(
-            marker_id=int(m["marker_id"]),
-            corners_px=np.array(m["corners_px"]),
-            corners_cov=np.array(m["corners_cov"]),
-            center_px=np.array(m["center_px"]),
-            center_cov=np.array(m["center_cov"]),
-            quality=float(m["quality"]),
-            found_by=m["found_by"],
-            raw_corners_px=_opt(m.get("raw_corners_px")),
-            depth_m=_opt(m["depth_m"]),
-            depth_cov=_opt(m["depth_cov"]),
-            points_cam=_opt(m["points_cam"]),
-            points_cov=_opt(m["points_cov"]),
-            depth_note=m["depth_note"],
-            depth_pixels=m.get("depth_pixels", {}),
+            **{
+                f.name: _opt(m[f.name]) if _is_array_field(f) else m[f.name]
+                for f in fields(MarkerObservation)
+            }
         )
         for m in f["markers"]
     ]
