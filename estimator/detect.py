@@ -24,6 +24,7 @@ from estimator.marker_fit import (
     DEFAULT_CORNER_FLOOR_PX,
     MarkerFitError,
     fit_marker,
+    fits_in_image,
     orient_corners,
 )
 from estimator.qr_decode import BACKENDS, DecodedSymbol, decode_qr
@@ -288,13 +289,8 @@ class QRDetector:
 
     def _in_view(self, shape: tuple[int, ...], corners_px: np.ndarray) -> bool:
         """Whether a marker with its quiet zone lies inside the image and is big enough to decode."""
-        center = corners_px.mean(axis=0)
-        grown = center + (corners_px - center) * (1.0 + 4.0 / self.board.modules)
         side = float(np.linalg.norm(corners_px - np.roll(corners_px, 1, axis=0), axis=1).min())
-        h, w = shape[:2]
-        return bool(
-            np.all(grown >= 0) and np.all(grown[:, 0] <= w - 1) and np.all(grown[:, 1] <= h - 1)
-        ) and (side >= 1.5 * self.board.modules)
+        return fits_in_image(corners_px, 2.0 / self.board.modules, shape) and side >= 1.5 * self.board.modules
 
     def _all_in_view_found(self, shape: tuple[int, ...], candidates: list[_Candidate]) -> bool:
         found = {c.marker_id for c in candidates}

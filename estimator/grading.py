@@ -16,6 +16,7 @@ from estimator.board import BoardDefinition
 from estimator.camera import CameraIntrinsics, project_points
 from estimator.dataset import GroundTruth
 from estimator.geometry import invert, transform_points
+from estimator.marker_fit import fits_in_image
 from estimator.observations import FrameObservations
 
 # A detection this far (pixels, any corner) from its marker's true corners has the wrong ID.
@@ -79,16 +80,6 @@ class MeasurementErrors:
         }
 
 
-def _fully_visible(corners_px: np.ndarray, board: BoardDefinition, intrinsics: CameraIntrinsics) -> bool:
-    center = corners_px.mean(axis=0)
-    grown = center + (corners_px - center) * (1.0 + 2.0 * VISIBLE_QUIET_MODULES / board.modules)
-    return bool(
-        np.all(grown >= 0.0)
-        and np.all(grown[:, 0] <= intrinsics.width - 1)
-        and np.all(grown[:, 1] <= intrinsics.height - 1)
-    )
-
-
 def grade_observations(
     observations: list[FrameObservations],
     truth: GroundTruth,
@@ -102,7 +93,9 @@ def grade_observations(
         for marker_id in board.marker_ids:
             true_corners = project_points(T_cam_board, board.marker_corners(marker_id), intrinsics.K)
             facing = (invert(T_cam_board) @ np.array([0.0, 0.0, 0.0, 1.0]))[2] > 0.0
-            visible = facing and _fully_visible(true_corners, board, intrinsics)
+            visible = facing and fits_in_image(
+                true_corners, VISIBLE_QUIET_MODULES / board.modules, (intrinsics.height, intrinsics.width)
+            )
             errors.visible += int(visible)
             marker = obs.marker(marker_id)
             if marker is None:

@@ -198,7 +198,7 @@ def fit_marker(
     px_per_module = int(np.clip(round(side_px / n), 2, 3))
     template = _template(modules.tobytes(), n, px_per_module)
     q = TEMPLATE_QUIET_MODULES
-    if _region(gray, corners_px, quiet_fraction=q / n, clip=False)[1] is None:
+    if not fits_in_image(corners_px, q / n, gray.shape):
         raise MarkerFitError("the marker or its quiet zone is partly outside the image")
     # Symbol coordinates -> template pixels: the symbol spans [q*s - 0.5, (q+n)*s - 0.5].
     S_ab_to_tpl = np.array(
@@ -230,8 +230,7 @@ def fit_marker(
     moved = float(np.abs(refined - corners_px).max())
     if moved > max(3.0, 0.15 * side_px):
         raise MarkerFitError(f"code alignment moved a corner by {moved:.1f} px from the decoder's")
-    _, roi_check = _region(gray, refined, quiet_fraction=q / n, clip=False)
-    if roi_check is None:
+    if not fits_in_image(refined, q / n, gray.shape):
         raise MarkerFitError("the fitted marker's quiet zone leaves the image")
     noise_cov, sigma = _corner_covariance(roi, H_roi_tpl, template, refined - roi_origin)
     J_center = point_jacobian_wrt_corners(refined, np.array([[0.5, 0.5]]))[0]
@@ -246,23 +245,26 @@ def fit_marker(
     )
 
 
-def _region(
-    gray: np.ndarray, corners_px: np.ndarray, quiet_fraction: float, clip: bool = True
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """The float32 crop around a marker grown by quiet_fraction of its side on every side.
-
-    Returns (origin (2,) int pixel of the crop's top-left, crop). With clip=False the crop is
-    None when the grown marker does not fit in the image.
-    """
+def grown_corners(corners_px: np.ndarray, quiet_fraction: float) -> np.ndarray:
+    """(4, 2) corners of the marker grown about its centre by quiet_fraction of its side on every side."""
     center = corners_px.mean(axis=0)
-    grown = center + (corners_px - center) * (1.0 + 2.0 * quiet_fraction)
-    lo = np.floor(grown.min(axis=0)).astype(int)
-    hi = np.ceil(grown.max(axis=0)).astype(int) + 1
+    return center + (corners_px - center) * (1.0 + 2.0 * quiet_fraction)
+
+
+def fits_in_image(corners_px: np.ndarray, quiet_fraction: float, shape: tuple[int, ...]) -> bool:
+    """Whether the marker, grown by quiet_fraction of its side, lies inside an image of this shape."""
+    grown = grown_corners(corners_px, quiet_fraction)
+    h, w = shape[:2]
+    return bool(np.all(grown >= 0.0) and np.all(grown[:, 0] <= w - 1) and np.all(grown[:, 1] <= h - 1))
+
+
+def _region(gray: np.ndarray, corners_px: np.ndarray, quiet_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """The float32 crop (clipped to the image) around a marker grown by quiet_fraction of its
+    side, and the (2,) int pixel of its top-left."""
+    grown = grown_corners(corners_px, quiet_fraction)
     h, w = gray.shape
-    if not clip and (lo.min() < 0 or hi[0] > w or hi[1] > h):
-        return lo, None
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [w, h])
+    lo = np.maximum(np.floor(grown.min(axis=0)).astype(int), 0)
+    hi = np.minimum(np.ceil(grown.max(axis=0)).astype(int) + 1, [w, h])
     return lo, gray[lo[1] : hi[1], lo[0] : hi[0]].astype(np.float32)
 
 
