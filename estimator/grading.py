@@ -35,6 +35,7 @@ class MeasurementErrors:
     corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (4, 2) each
     raw_corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (4, 2) each
     corner_nees: list[float] = field(default_factory=list)  # per corner, dim 2
+    center_errors_px: list[np.ndarray] = field(default_factory=list)  # (2,) each
     center_px_nees: list[float] = field(default_factory=list)
     point_errors_m: list[np.ndarray] = field(default_factory=list)  # (5, 3) each
     point_nees: list[np.ndarray] = field(default_factory=list)  # (5,) each, dim 3
@@ -80,6 +81,11 @@ class MeasurementErrors:
         }
 
 
+def true_T_cam_board(truth: GroundTruth, frame: int) -> np.ndarray:
+    """(4, 4) the board in the true camera frame of one frame."""
+    return invert(truth.T_base_flange[frame] @ truth.T_flange_cam) @ truth.T_base_board
+
+
 def grade_observations(
     observations: list[FrameObservations],
     truth: GroundTruth,
@@ -89,7 +95,7 @@ def grade_observations(
     """Compare every frame's observations with the truth (pinhole projection, no distortion)."""
     errors = MeasurementErrors()
     for obs in observations:
-        T_cam_board = invert(truth.T_base_flange[obs.frame] @ truth.T_flange_cam) @ truth.T_base_board
+        T_cam_board = true_T_cam_board(truth, obs.frame)
         for marker_id in board.marker_ids:
             true_corners = project_points(T_cam_board, board.marker_corners(marker_id), intrinsics.K)
             facing = (invert(T_cam_board) @ np.array([0.0, 0.0, 0.0, 1.0]))[2] > 0.0
@@ -114,6 +120,7 @@ def grade_observations(
                 )
             true_center = project_points(T_cam_board, board.marker_center(marker_id)[None], intrinsics.K)[0]
             e = marker.center_px - true_center
+            errors.center_errors_px.append(e)
             errors.center_px_nees.append(float(e @ np.linalg.solve(marker.center_cov, e)) / 2.0)
             if marker.points_cam is None:
                 continue

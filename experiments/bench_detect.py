@@ -22,8 +22,7 @@ import sim  # noqa: F401  (selects the GL backend before mujoco loads)
 from estimator.camera import project_points
 from estimator.dataset import Dataset, load_dataset
 from estimator.detect import DetectorSettings, QRDetector, to_gray
-from estimator.geometry import invert
-from estimator.grading import grade_observations
+from estimator.grading import grade_observations, true_T_cam_board
 from estimator.observations import dataset_depth_noise, observe_frame
 from estimator.qr_decode import decode_qr
 from sim.scenario import load_scenario, scenario_from_dict
@@ -43,8 +42,7 @@ def _render(kind: str, seed: int, out: Path, noise_free_rgb: bool = False) -> Da
 
 
 def _true_corners(dataset: Dataset, i: int) -> dict[int, np.ndarray]:
-    truth = dataset.ground_truth
-    T_cam_board = invert(truth.T_base_flange[i] @ truth.T_flange_cam) @ truth.T_base_board
+    T_cam_board = true_T_cam_board(dataset.ground_truth, i)
     return {
         m: project_points(T_cam_board, dataset.board.marker_corners(m), dataset.intrinsics.K)
         for m in dataset.board.marker_ids
@@ -95,20 +93,13 @@ def _combined(dataset: Dataset) -> dict:
 def _floors(dataset: Dataset) -> tuple[float, float]:
     """RMS per coordinate of refined corners and centres on noise-free renders (image noise ~0)."""
     detector = QRDetector(dataset.board)
-    corner, center = [], []
-    for i in range(len(dataset)):
-        truth = dataset.ground_truth
-        T_cam_board = invert(truth.T_base_flange[i] @ truth.T_flange_cam) @ truth.T_base_board
-        for m in detector.detect(dataset.frame(i).rgb).markers:
-            corners = project_points(
-                T_cam_board, dataset.board.marker_corners(m.marker_id), dataset.intrinsics.K
-            )
-            c = project_points(
-                T_cam_board, dataset.board.marker_center(m.marker_id)[None], dataset.intrinsics.K
-            )
-            corner.append(m.corners_px - corners)
-            center.append(m.center_px - c[0])
-    return float(np.sqrt(np.mean(np.square(corner)))), float(np.sqrt(np.mean(np.square(center))))
+    noise = dataset_depth_noise(dataset)
+    observations = [observe_frame(i, dataset.frame(i), detector, noise) for i in range(len(dataset))]
+    errors = grade_observations(observations, dataset.ground_truth, dataset.board, dataset.intrinsics)
+    return (
+        float(np.sqrt(np.mean(np.square(errors.corner_errors_px)))),
+        float(np.sqrt(np.mean(np.square(errors.center_errors_px)))),
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
