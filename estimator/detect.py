@@ -274,18 +274,24 @@ class QRDetector:
             )
         )
 
-    def _predicted_corners(self, image_points: np.ndarray, board_ids: list[int]) -> dict[int, np.ndarray]:
-        """Where every other marker should be, from the board-to-image homography of known ones."""
-        board_xy = np.concatenate([self.board.marker_corners(i)[:, :2] for i in board_ids])
-        H, _ = cv2.findHomography(board_xy, image_points.reshape(-1, 2), 0)
+    def _missing_in_view(
+        self, shape: tuple[int, ...], known: dict[int, np.ndarray], accounted: set[int]
+    ) -> dict[int, np.ndarray]:
+        """Markers not in ``accounted`` that the board-to-image homography of the ``known``
+        markers' corners puts in view, with their predicted (4, 2) corners."""
+        board_xy = np.concatenate([self.board.marker_corners(i)[:, :2] for i in known])
+        H, _ = cv2.findHomography(board_xy, np.concatenate(list(known.values())), 0)
         if H is None:
             return {}
-        predicted = {}
+        missing = {}
         for marker_id in self.board.marker_ids:
             xy1 = np.column_stack([self.board.marker_corners(marker_id)[:, :2], np.ones(4)]) @ H.T
-            if np.all(xy1[:, 2] > 0):
-                predicted[marker_id] = xy1[:, :2] / xy1[:, 2:3]
-        return predicted
+            if marker_id in accounted or not np.all(xy1[:, 2] > 0):
+                continue
+            corners = xy1[:, :2] / xy1[:, 2:3]
+            if self._in_view(shape, corners):
+                missing[marker_id] = corners
+        return missing
 
     def _in_view(self, shape: tuple[int, ...], corners_px: np.ndarray) -> bool:
         """Whether a marker with its quiet zone lies inside the image and is big enough to decode."""
@@ -293,33 +299,26 @@ class QRDetector:
         return fits_in_image(corners_px, 2.0 / self.board.modules, shape) and side >= 1.5 * self.board.modules
 
     def _all_in_view_found(self, shape: tuple[int, ...], candidates: list[_Candidate]) -> bool:
-        found = {c.marker_id for c in candidates}
-        if found >= set(self.board.marker_ids):
+        known = {c.marker_id: c.corners_px for c in candidates}
+        if set(known) >= set(self.board.marker_ids):
             return True
-        if not candidates:
-            return False
-        unique = {c.marker_id: c for c in candidates}
-        predicted = self._predicted_corners(np.stack([c.corners_px for c in unique.values()]), list(unique))
-        return all(not self._in_view(shape, c) for i, c in predicted.items() if i not in found)
+        return bool(known) and not self._missing_in_view(shape, known, set(known))
 
     def _report_missing(self, shape: tuple[int, ...], result: Detections) -> None:
         if not result.markers:
             return
-        predicted = self._predicted_corners(
-            np.stack([m.corners_px for m in result.markers]), [m.marker_id for m in result.markers]
-        )
-        accounted = {m.marker_id for m in result.markers} | {r.marker_id for r in result.rejected}
-        for marker_id, corners in predicted.items():
-            if marker_id not in accounted and self._in_view(shape, corners):
-                u, v = corners.mean(axis=0)
-                result.rejected.append(
-                    Rejection(
-                        f"marker {marker_id}: expected at ({u:.0f}, {v:.0f}) but no pass decoded it "
-                        f"({', '.join(result.passes_run)})",
-                        marker_id,
-                        corners_px=corners,
-                    )
+        known = {m.marker_id: m.corners_px for m in result.markers}
+        accounted = set(known) | {r.marker_id for r in result.rejected}
+        for marker_id, corners in self._missing_in_view(shape, known, accounted).items():
+            u, v = corners.mean(axis=0)
+            result.rejected.append(
+                Rejection(
+                    f"marker {marker_id}: expected at ({u:.0f}, {v:.0f}) but no pass decoded it "
+                    f"({', '.join(result.passes_run)})",
+                    marker_id,
+                    corners_px=corners,
                 )
+            )
 
 
 def _same_place(a: DecodedSymbol, b: DecodedSymbol) -> bool:
