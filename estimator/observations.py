@@ -173,9 +173,11 @@ def observe_dataset(
     dataset: Dataset,
     settings: DetectorSettings | None = None,
     depth_noise: DepthNoiseModel | None = None,
-    progress: Callable[[int, FrameObservations], None] | None = None,
+    progress: Callable[[FrameObservations, Frame | None], None] | None = None,
 ) -> list[FrameObservations]:
-    """Observations of every frame; a frame whose files cannot be read is kept with its problem."""
+    """Observations of every frame; a frame whose files cannot be read is kept with its problem.
+    progress, if given, is called after each frame with its observations and the frame
+    (None when it could not be read)."""
     detector = QRDetector(dataset.board, settings)
     noise = depth_noise or dataset_depth_noise(dataset)
     observations = []
@@ -183,12 +185,13 @@ def observe_dataset(
         try:
             frame = dataset.frame(i)
         except DatasetError as exc:
+            frame = None
             obs = FrameObservations(i, row["time_s"], row["T_base_flange"], problem=str(exc))
         else:
             obs = observe_frame(i, frame, detector, noise)
         observations.append(obs)
         if progress is not None:
-            progress(i, obs)
+            progress(obs, frame)
     return observations
 
 

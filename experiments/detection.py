@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from estimator.dataset import Dataset, DatasetError, load_dataset
+from estimator.camera import CameraIntrinsics
+from estimator.dataset import Frame, load_dataset
 from estimator.detect import DEFAULT_PASSES, DetectorSettings
 from estimator.grading import grade_observations
 from estimator.observations import (
@@ -45,20 +46,15 @@ def _frame_row(obs: FrameObservations, board_ids: list[int]) -> str:
     )
 
 
-def _write_overlays(dataset: Dataset, observations: list[FrameObservations], quiet: bool) -> Path:
-    out = dataset.root / OVERLAY_DIR
-    out.mkdir(exist_ok=True)
-    for obs in tqdm(observations, desc="overlays", unit="frame", disable=quiet, file=sys.stderr):
-        try:
-            rgb = dataset.frame(obs.frame).rgb
-        except DatasetError:
-            rgb = np.zeros((dataset.intrinsics.height, dataset.intrinsics.width, 3), np.uint8)
-        picture = cv2.cvtColor(draw_overlay(rgb, obs), cv2.COLOR_RGB2BGR)
-        path = out / f"{obs.frame:06d}.png"
-        tmp = path.with_name(f".{path.name}.partial.png")
-        cv2.imwrite(str(tmp), picture)
-        tmp.replace(path)
-    return out
+def _write_overlay(
+    out: Path, obs: FrameObservations, frame: Frame | None, intrinsics: CameraIntrinsics
+) -> None:
+    """DATASET/overlay/NNNNNN.png for one frame (black where the image could not be read)."""
+    rgb = frame.rgb if frame is not None else np.zeros((intrinsics.height, intrinsics.width, 3), np.uint8)
+    path = out / f"{obs.frame:06d}.png"
+    tmp = path.with_name(f".{path.name}.partial.png")
+    cv2.imwrite(str(tmp), cv2.cvtColor(draw_overlay(rgb, obs), cv2.COLOR_RGB2BGR))
+    tmp.replace(path)
 
 
 def run_detect(
@@ -70,9 +66,18 @@ def run_detect(
     depth_noise = dataset_depth_noise(dataset)
     if "depth_noise" not in dataset.metadata:
         print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
+    overlay_dir = dataset.root / OVERLAY_DIR
+    if overlay:
+        overlay_dir.mkdir(exist_ok=True)
     start = time.perf_counter()
     with tqdm(total=len(dataset), desc="detect", unit="frame", disable=quiet, file=sys.stderr) as bar:
-        observations = observe_dataset(dataset, settings, depth_noise, progress=lambda i, o: bar.update())
+
+        def after_frame(obs: FrameObservations, frame: Frame | None) -> None:
+            if overlay:
+                _write_overlay(overlay_dir, obs, frame, dataset.intrinsics)
+            bar.update()
+
+        observations = observe_dataset(dataset, settings, depth_noise, progress=after_frame)
     elapsed = time.perf_counter() - start
     cache = save_observations(dataset.root, observations, settings, depth_noise)
     board_ids = dataset.board.marker_ids
@@ -86,10 +91,11 @@ def run_detect(
         f"{len(observations)} frames ({skipped} skipped), {markers} markers, "
         f"{sum(len(o.rejected) for o in observations)} rejected; "
         f"{1000 * elapsed / max(len(observations), 1):.1f} ms per frame with image loading"
+        + (" and overlays" if overlay else "")
     )
     print(f"observations: {cache}")
     if overlay:
-        print(f"overlays: {_write_overlays(dataset, observations, quiet)}/")
+        print(f"overlays: {overlay_dir}/")
     if dataset.ground_truth is not None:
         s = grade_observations(
             observations, dataset.ground_truth, dataset.board, dataset.intrinsics
