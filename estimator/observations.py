@@ -128,6 +128,31 @@ def observe_frame(
     return obs
 
 
+def camera_points(
+    marker: MarkerDetection,
+    z: np.ndarray,
+    z_cov: np.ndarray,
+    slope: np.ndarray,
+    intrinsics: CameraIntrinsics,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The centre and corners of a marker in the camera frame, each with its covariance.
+
+    z: (5,) depth at (centre, corner 0..3), metres; z_cov: (5, 5); slope: (5, 2) dz/d(u, v)
+    of the surface there. Returns points (5, 3) and their covariances (5, 3, 3).
+    """
+    uv = np.vstack([marker.center_px, marker.corners_px])
+    rays, d_ray_d_uv = pixel_rays(uv, intrinsics)
+    uv_cov = np.zeros((5, 2, 2))
+    uv_cov[0] = marker.center_cov
+    for k in range(4):
+        uv_cov[k + 1] = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+    d_p_d_uv = z[:, None, None] * d_ray_d_uv + rays[:, :, None] * slope[:, None, :]
+    points_cov = d_p_d_uv @ uv_cov @ d_p_d_uv.transpose(0, 2, 1) + np.diag(z_cov)[:, None, None] * (
+        rays[:, :, None] * rays[:, None, :]
+    )
+    return rays * z[:, None], points_cov
+
+
 def _depth(
     marker: MarkerDetection, depth_m: np.ndarray, intrinsics: CameraIntrinsics, noise: DepthNoiseModel
 ) -> dict:
@@ -138,19 +163,11 @@ def _depth(
         return {"depth_note": str(exc)}
     uv = np.vstack([marker.center_px, marker.corners_px])
     z, z_cov = plane.depth_at(uv)
-    rays, d_ray_d_uv = pixel_rays(uv, intrinsics)
-    uv_cov = np.zeros((5, 2, 2))
-    uv_cov[0] = marker.center_cov
-    for k in range(4):
-        uv_cov[k + 1] = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
-    d_p_d_uv = z[:, None, None] * d_ray_d_uv + rays[:, :, None] * plane.slope_at(uv)[:, None, :]
-    points_cov = d_p_d_uv @ uv_cov @ d_p_d_uv.transpose(0, 2, 1) + np.diag(z_cov)[:, None, None] * (
-        rays[:, :, None] * rays[:, None, :]
-    )
+    points, points_cov = camera_points(marker, z, z_cov, plane.slope_at(uv), intrinsics)
     return {
         "depth_m": z,
         "depth_cov": z_cov,
-        "points_cam": rays * z[:, None],
+        "points_cam": points,
         "points_cov": points_cov,
         "depth_pixels": {"inliers": plane.inliers, "valid": plane.valid, "pixels": plane.pixels},
     }

@@ -1,0 +1,40 @@
+"""Measurement-level test scenes: the default scenario's geometry with a chosen mount."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimator.camera import CameraIntrinsics
+from estimator.geometry import make_transform
+from estimator.lie import so3_exp
+from estimator.observations import FrameObservations
+from estimator.synthetic import SyntheticNoise, synthetic_observations
+from sim.scenario import load_scenario
+from sim.trajectory import paper_waypoints, rotation_rich_waypoints
+
+SCENARIO = load_scenario(None)
+BOARD = SCENARIO.board_definition()
+INTRINSICS: CameraIntrinsics = SCENARIO.camera.intrinsics()
+T_BASE_BOARD = SCENARIO.board.transform()
+
+
+def random_mount(rng: np.random.Generator) -> np.ndarray:
+    """A T_flange_cam near the default mount: up to 50 mm and about 20 degrees away."""
+    return SCENARIO.mount.transform() @ make_transform(
+        so3_exp(rng.normal(0.0, np.radians(12.0), 3)), rng.uniform(-0.05, 0.05, 3)
+    )
+
+
+def scene(
+    T_flange_cam: np.ndarray,
+    rng: np.random.Generator,
+    noise: SyntheticNoise | None = None,
+    exact: bool = False,
+    trajectory: str = "rotation-rich",
+) -> list[FrameObservations]:
+    """Synthetic observations of the default board along the default (or the paper's) views."""
+    make = rotation_rich_waypoints if trajectory == "rotation-rich" else paper_waypoints
+    flange_poses = [w.T_base_flange for w in make(T_BASE_BOARD, T_flange_cam, SCENARIO.trajectory.distance_m)]
+    return synthetic_observations(
+        BOARD, INTRINSICS, T_flange_cam, T_BASE_BOARD, flange_poses, noise or SyntheticNoise(), rng, exact
+    )
