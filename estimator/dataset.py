@@ -5,8 +5,10 @@ folder a person can open without this project::
 
     dataset.json        format, version, source, frame count, camera intrinsics,
                         depth scale, the depth noise model ('depth_noise', see
-                        estimator.depth.DepthNoiseModel; optional) and (simulation)
-                        seed, scenario, skipped waypoints
+                        estimator.depth.DepthNoiseModel; optional), the noise of the
+                        reported flange poses ('robot_pose_noise': translation_sigma_m,
+                        rotation_sigma_rad, see estimator.problem.RobotPoseNoise; optional)
+                        and (simulation) seed, scenario, skipped waypoints
     board.json          the board definition (hec-board v1)
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported
                         T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad

@@ -28,12 +28,12 @@ MIN_AXIS_SPREAD = 0.1
 
 
 def board_pose_pnp(problem: CalibrationProblem, frame: FrameMeasurements) -> np.ndarray:
-    """T_cam_board (4, 4) of one frame from its corner pixels (planar PnP, then refined)."""
+    """T_cam_board (4, 4) of one frame from its corner pixels (SQPnP, then refined)."""
     object_points = np.concatenate([m.corners_board for m in frame.markers])
     image_points = np.concatenate([m.corners_px for m in frame.markers])
     k = problem.intrinsics
     dist = np.array(k.dist, dtype=np.float64)
-    ok, rvec, tvec = cv2.solvePnP(object_points, image_points, k.K, dist, flags=cv2.SOLVEPNP_IPPE)
+    ok, rvec, tvec = cv2.solvePnP(object_points, image_points, k.K, dist, flags=cv2.SOLVEPNP_SQPNP)
     if not ok:
         raise CalibrationInputError(
             f"frame {frame.frame}: the board pose could not be solved from its corners"

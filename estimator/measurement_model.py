@@ -14,12 +14,12 @@ order in the state vector.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from estimator.camera import distort_normalized
-from estimator.lie import pose_minus, pose_plus
+from estimator.lie import pose_minus, pose_plus, pose_plus_jacobian
 from estimator.problem import CalibrationProblem, FrameMeasurements
 
 
@@ -66,8 +66,13 @@ class HandEyeState:
             parts.append([self.depth_scale - reference.depth_scale])
         return np.concatenate(parts)
 
-    def with_scale(self, depth_scale: float | None) -> HandEyeState:
-        return replace(self, depth_scale=depth_scale)
+    def plus_jacobian(self, delta: np.ndarray) -> np.ndarray:
+        """(dim, dim) d(local perturbation at self.plus(delta)) / d(delta)."""
+        J = np.eye(self.dim)
+        J[:6, :6] = pose_plus_jacobian(delta[:6])
+        if self.T_base_board is not None:
+            J[6:12, 6:12] = pose_plus_jacobian(delta[6:12])
+        return J
 
 
 @dataclass

@@ -22,6 +22,7 @@ import numpy as np
 
 from estimator.board import BoardDefinition
 from estimator.camera import CameraIntrinsics
+from estimator.dataset import Dataset, DatasetError
 from estimator.observations import FrameObservations
 
 MIN_FRAMES = 3
@@ -45,6 +46,12 @@ class RobotPoseNoise:
         if not (self.translation_sigma_m >= 0 and self.rotation_sigma_rad >= 0):
             raise ValueError("robot pose noise sigmas must be >= 0")
 
+    def to_dict(self) -> dict:
+        return {
+            "translation_sigma_m": self.translation_sigma_m,
+            "rotation_sigma_rad": self.rotation_sigma_rad,
+        }
+
     def covariance(self) -> np.ndarray:
         """(6, 6) diagonal covariance of delta = (dt, dtheta)."""
         return np.diag([self.translation_sigma_m**2] * 3 + [self.rotation_sigma_rad**2] * 3)
@@ -52,6 +59,19 @@ class RobotPoseNoise:
     @property
     def is_zero(self) -> bool:
         return self.translation_sigma_m == 0.0 and self.rotation_sigma_rad == 0.0
+
+
+def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
+    """The dataset's robot pose noise (dataset.json 'robot_pose_noise'), else RobotPoseNoise()."""
+    spec = dataset.metadata.get("robot_pose_noise")
+    if spec is None:
+        return RobotPoseNoise()
+    try:
+        return RobotPoseNoise(float(spec["translation_sigma_m"]), float(spec["rotation_sigma_rad"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(
+            f"{dataset.root / 'dataset.json'}: field 'robot_pose_noise' is malformed ({exc})"
+        ) from None
 
 
 @dataclass

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from estimator.camera import CameraIntrinsics
 from estimator.dataset import decode_depth, encode_depth
 from estimator.depth import DepthNoiseModel
+from estimator.problem import RobotPoseNoise as RobotPoseNoiseModel
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
@@ -45,6 +46,15 @@ def depth_noise_model(noise: NoiseSettings) -> DepthNoiseModel:
         depth_step_m=noise.depth_quantisation.depth_scale_m,
         correlation_px=1.0,
     )
+
+
+def robot_pose_noise_model(noise: NoiseSettings) -> RobotPoseNoiseModel:
+    """The reported flange pose noise these settings produce, as the estimators model it
+    (written to dataset.json as 'robot_pose_noise'; zero when disabled)."""
+    robot = noise.robot_pose
+    if not robot.enabled:
+        return RobotPoseNoiseModel(0.0, 0.0)
+    return RobotPoseNoiseModel(robot.translation_sigma_m, float(np.radians(robot.rotation_sigma_deg)))
 
 
 def _valid_mask(depth_m: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from estimator.dataset import DatasetWriter, GroundTruth
 from sim.cell import SimCell, WaypointRejected
-from sim.noise import depth_noise_model
+from sim.noise import depth_noise_model, robot_pose_noise_model
 from sim.preview import write_preview
 from sim.scenario import Scenario
 from sim.trajectory import Waypoint, paper_waypoints, read_waypoint_file, rotation_rich_waypoints
@@ -88,6 +88,7 @@ def simulate(
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
             extra = {
                 "depth_noise": depth_noise_model(scenario.noise).to_dict(),
+                "robot_pose_noise": robot_pose_noise_model(scenario.noise).to_dict(),
                 "simulation": {
                     "seed": seed,
                     "scenario": scenario.to_dict(),

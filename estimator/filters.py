@@ -1,0 +1,180 @@
+"""ekf and iekf: error-state Kalman filters over T_flange_cam and the board (or landmarks).
+
+The state is static, so there is no prediction; each waypoint is one update with
+all of its markers (the filter can run online as frames arrive). The reported
+flange pose of that waypoint is a measurement too: its error delta (6,) joins the
+state for the update with prior N(0, robot noise) and is marginalised out after
+it, which is exact for the linearised model and lets iekf relinearise it. Updates
+use the information form with whitened measurements (R = I):
+
+    P+ = inv(inv(P_a) + H^T H),   a_{j+1} = P+ H^T (r_j + H a_j)
+
+with a the perturbation of the augmented state, r_j the whitened residual and H
+its Jacobian at the j-th iterate (ekf: one iterate, iekf: until the step is below
+tolerance). The state is then moved to the estimate (estimator.lie convention).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from scipy.stats import chi2
+
+from estimator.calibration import (
+    DEFAULT_PRIOR_SIGMA_M,
+    DEFAULT_PRIOR_SIGMA_RAD,
+    Calibration,
+    MethodOptions,
+    landmarks_by_marker,
+    marker_residuals,
+)
+from estimator.initialise import initial_state
+from estimator.lie import pose_plus_jacobian
+from estimator.measurement_model import HandEyeState, predict_frame
+from estimator.problem import CalibrationProblem, FrameMeasurements
+
+IEKF_MAX_ITERATIONS = 10
+IEKF_TOLERANCE = 1e-10
+LINE_SEARCH_HALVINGS = 20
+# A marker whose innovation exceeds this chi-square quantile is rejected (robust option).
+GATE_PROBABILITY = 1.0 - 1e-4
+DEPTH_SCALE_PRIOR_SIGMA = 0.05
+# Landmarks start at the closed-form board corners (a few mm off) with this sigma. A single
+# linearisation about landmarks 0.5 m uncertain is far off after the first frame: ekf then
+# ended 34x the Cramer-Rao bound (NEES 250); with 1 cm it reaches 0.84x (NEES 5.8).
+DEFAULT_LANDMARK_SIGMA_M = 0.01
+
+
+def initial_covariance(state: HandEyeState, options: MethodOptions) -> np.ndarray:
+    """(dim, dim) starting covariance: the prior's for T_flange_cam (default: wide), wide for the board
+    pose, DEFAULT_LANDMARK_SIGMA_M for landmarks, DEPTH_SCALE_PRIOR_SIGMA for the depth scale."""
+    wide_pose = np.array([DEFAULT_PRIOR_SIGMA_M**2] * 3 + [DEFAULT_PRIOR_SIGMA_RAD**2] * 3)
+    diag = np.full(state.dim, DEFAULT_LANDMARK_SIGMA_M**2)
+    diag[6:12] = wide_pose if state.T_base_board is not None else diag[6:12]
+    if state.depth_scale is not None:
+        diag[-1] = DEPTH_SCALE_PRIOR_SIGMA**2
+    P = np.diag(diag)
+    P[:6, :6] = options.prior.covariance if options.prior is not None else np.diag(wide_pose)
+    return P
+
+
+def _marker_rows(frame: FrameMeasurements) -> list[slice]:
+    rows, start = [], 0
+    for m in frame.markers:
+        rows.append(slice(start, start + m.whitening.shape[0]))
+        start += m.whitening.shape[0]
+    return rows
+
+
+def gate_markers(
+    frame: FrameMeasurements, residual: np.ndarray, H: np.ndarray, P_a: np.ndarray
+) -> tuple[np.ndarray, list[int]]:
+    """Boolean row mask (m,) keeping markers whose innovation passes the chi-square gate,
+    and the marker IDs that fail it. H: (m, n_a) Jacobian of the whitened prediction."""
+    keep = np.ones(len(residual), dtype=bool)
+    failed = []
+    for m, rows in zip(frame.markers, _marker_rows(frame), strict=True):
+        Hk = H[rows]
+        S = Hk @ P_a @ Hk.T + np.eye(len(Hk))
+        nis = float(residual[rows] @ np.linalg.solve(S, residual[rows]))
+        if nis > chi2.ppf(GATE_PROBABILITY, len(Hk)):
+            keep[rows] = False
+            failed.append(m.marker_id)
+    return keep, failed
+
+
+def update_frame(
+    problem: CalibrationProblem,
+    state: HandEyeState,
+    P: np.ndarray,
+    frame: FrameMeasurements,
+    max_iterations: int,
+    robust: bool,
+) -> tuple[HandEyeState, np.ndarray, int, list[int]]:
+    """One waypoint's (iterated) update. Returns the new state, its covariance, the
+    iterations run and the marker IDs rejected by the gate."""
+    n = state.dim
+    robot_cov = problem.robot_noise.covariance()
+    with_robot = not problem.robot_noise.is_zero
+    n_a = n + 6 if with_robot else n
+    P_a = np.zeros((n_a, n_a))
+    P_a[:n, :n] = P
+    if with_robot:
+        P_a[n:, n:] = robot_cov
+    info_prior = np.linalg.inv(P_a)
+
+    def linearise(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residual and its Jacobian with respect to a (the perturbation at the prior)."""
+        pred = predict_frame(problem, state.plus(a[:n]), frame, a[n:] if with_robot else None)
+        H = pred.J_state @ state.plus_jacobian(a[:n])
+        if with_robot:
+            H = np.hstack([H, pred.J_flange @ pose_plus_jacobian(a[n:])])
+        return pred.residual, H
+
+    def cost(a: np.ndarray) -> float:
+        pred = predict_frame(problem, state.plus(a[:n]), frame, a[n:] if with_robot else None, False)
+        return float(a @ info_prior @ a + np.sum(pred.residual[keep] ** 2))
+
+    a = np.zeros(n_a)
+    r, H = linearise(a)
+    keep, rejected = np.ones(len(r), dtype=bool), []
+    if robust:
+        keep, rejected = gate_markers(frame, r, H, P_a)
+    for iteration in range(1, max_iterations + 1):
+        H, r = H[keep], r[keep]
+        P_post = np.linalg.inv(info_prior + H.T @ H)
+        a_next = P_post @ (H.T @ (r + H @ a))
+        if max_iterations > 1:
+            a_next = _backtrack(cost, a, a_next)
+        step = np.linalg.norm(a_next - a)
+        a = a_next
+        if iteration == max_iterations or step < IEKF_TOLERANCE:
+            break
+        r, H = linearise(a)
+    P_post = 0.5 * (P_post + P_post.T)
+    return state.plus(a[:n]), P_post[:n, :n], iteration, rejected
+
+
+def _backtrack(cost: Callable[[np.ndarray], float], a: np.ndarray, a_next: np.ndarray) -> np.ndarray:
+    """Halve the Gauss-Newton step until the posterior cost does not increase (damped IEKF):
+    far from the estimate, in directions one frame barely constrains, full steps overshoot."""
+    current = cost(a)
+    for _ in range(LINE_SEARCH_HALVINGS):
+        if cost(a_next) <= current:
+            return a_next
+        a_next = a + 0.5 * (a_next - a)
+    return a
+
+
+def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bool) -> Calibration:
+    """ekf (iterated=False) or iekf over all frames in order."""
+    start = time.perf_counter()
+    state, source = initial_state(problem, options)
+    P = initial_covariance(state, options)
+    iterations, rejected = 0, set()
+    max_iterations = IEKF_MAX_ITERATIONS if iterated else 1
+    for frame in problem.frames:
+        state, P, used, failed = update_frame(problem, state, P, frame, max_iterations, options.robust)
+        iterations += used
+        rejected |= {(frame.frame, marker_id) for marker_id in failed}
+    elapsed = time.perf_counter() - start
+    return Calibration(
+        method="iekf" if iterated else "ekf",
+        T_flange_cam=state.T_flange_cam,
+        covariance=P[:6, :6],
+        T_base_board=state.T_base_board,
+        landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
+        residuals=marker_residuals(problem, state, rejected),
+        observations_used=problem.observation_count - len(rejected),
+        observations_rejected=len(problem.rejected) + len(rejected),
+        depth_scale=state.depth_scale,
+        depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(P[-1, -1])),
+        diagnostics={
+            "iterations": iterations,
+            "time_s": elapsed,
+            "initialisation": source,
+            "state_covariance": P,
+        },
+    )

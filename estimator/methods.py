@@ -1,0 +1,67 @@
+"""Every calibration method behind one call, with the observability check added to each result."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from estimator.baselines import OPENCV_METHODS, opencv_calibrate
+from estimator.batch import batch
+from estimator.board import BoardDefinition
+from estimator.calibration import Calibration, MethodOptions
+from estimator.camera import CameraIntrinsics
+from estimator.filters import run_filter
+from estimator.measurement_model import HandEyeState
+from estimator.observability import observability
+from estimator.observations import FrameObservations
+from estimator.problem import CalibrationProblem, RobotPoseNoise, build_problem
+from estimator.seed_ekf import seed_ekf
+from estimator.ukf import ukf
+
+Method = Callable[[CalibrationProblem, MethodOptions, list[FrameObservations]], Calibration]
+
+METHODS: dict[str, Method] = {
+    "seed-ekf": seed_ekf,
+    "ekf": lambda problem, options, _: run_filter(problem, options, iterated=False),
+    "iekf": lambda problem, options, _: run_filter(problem, options, iterated=True),
+    "ukf": lambda problem, options, _: ukf(problem, options),
+    "batch": lambda problem, options, _: batch(problem, options),
+    **{
+        name: (lambda problem, options, _, name=name: opencv_calibrate(problem, options, name))
+        for name in OPENCV_METHODS
+    },
+}
+DEFAULT_METHOD = "ekf"
+
+
+def run_method(
+    name: str, problem: CalibrationProblem, options: MethodOptions, observations: list[FrameObservations]
+) -> Calibration:
+    """Run one method; its result carries diagnostics['observability'] and the warnings it raises."""
+    if name not in METHODS:
+        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)} or 'all'")
+    result = METHODS[name](problem, options, observations)
+    if result.T_base_board is not None:
+        state = HandEyeState(result.T_flange_cam, T_base_board=result.T_base_board)
+    else:
+        corners = np.concatenate([result.landmarks_base[i] for i in problem.marker_ids])
+        state = HandEyeState(result.T_flange_cam, landmarks_base=corners)
+    report = observability(problem, state)
+    result.diagnostics["observability"] = report
+    result.warnings.extend(w for w in report.warnings if w not in result.warnings)
+    return result
+
+
+def calibrate(
+    observations: list[FrameObservations],
+    board: BoardDefinition,
+    intrinsics: CameraIntrinsics,
+    method: str = DEFAULT_METHOD,
+    options: MethodOptions | None = None,
+    robot_noise: RobotPoseNoise | None = None,
+    use_depth: bool = True,
+) -> Calibration:
+    """Observations to a Calibration with one method (see METHODS)."""
+    problem = build_problem(observations, board, intrinsics, robot_noise, use_depth)
+    return run_method(method, problem, options or MethodOptions(), observations)
