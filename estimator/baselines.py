@@ -49,6 +49,8 @@ OPENCV_METHODS: dict[str, int] = {
 ROBOT_WORLD_METHODS = ("opencv-shah", "opencv-li")
 # Methods that solve rotation and translation in one linear system (see the module doc).
 JOINT_LINEAR_METHODS = ("opencv-andreff", "opencv-li")
+# A result whose reprojection residual exceeds this is not a solution (a good one is < 1 px).
+MISFIT_RESIDUAL_PX = 20.0
 
 
 def opencv_calibrate(problem: CalibrationProblem, options: MethodOptions, method: str) -> Calibration:
@@ -90,7 +92,7 @@ def opencv_calibrate(problem: CalibrationProblem, options: MethodOptions, method
         )
         raise CalibrationInputError(f"{method}: OpenCV found no solution ({e.err}){hint}") from None
     elapsed = time.perf_counter() - start
-    return Calibration(
+    result = Calibration(
         method=method,
         T_flange_cam=X,
         covariance=None,
@@ -98,9 +100,16 @@ def opencv_calibrate(problem: CalibrationProblem, options: MethodOptions, method
         landmarks_base=None,
         residuals=marker_residuals(problem, HandEyeState(X, T_base_board=B)),
         observations_used=problem.observation_count,
-        observations_rejected=len(problem.rejected),
+        observations_rejected=0,
         diagnostics={"iterations": 0, "time_s": elapsed, "pnp_frames": len(T_cam_board)},
     )
+    if result.residual_rms_px > MISFIT_RESIDUAL_PX:
+        result.warnings.append(
+            f"{method}'s result does not fit the observations "
+            f"(RMS residual {result.residual_rms_px:.0f} px): OpenCV returned a wrong solution "
+            "without an error; do not use it"
+        )
+    return result
 
 
 def _split(poses: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:

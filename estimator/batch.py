@@ -2,9 +2,10 @@
 
 Jointly optimises T_flange_cam, the board pose (or landmarks), the optional depth
 scale and every frame's flange pose error delta_i over all whitened reprojection
-and depth residuals, the robot-noise prior of each delta_i and the same prior on
-the state the filters start from. Parameters are perturbations of the starting
-state (estimator.lie convention), so the result is comparable with the filters.
+and depth residuals, the robot-noise prior of each delta_i, the user's prior on
+T_flange_cam if given, and the same wide prior on the state the filters start from.
+Parameters are perturbations of the starting state (estimator.lie convention), so the
+result is comparable with the filters.
 scipy.optimize.least_squares with an analytic Jacobian, assembled sparse (each
 frame's residuals depend on the state and on its own delta only) and, when robust,
 a Huber loss on the whitened residuals. The trust-region steps are solved exactly
@@ -22,7 +23,7 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from estimator.calibration import Calibration, MethodOptions, landmarks_by_marker, marker_residuals
+from estimator.calibration import Calibration, MethodOptions, Prior, landmarks_by_marker, marker_residuals
 from estimator.filters import GATE_PROBABILITY, initial_covariance
 from estimator.initialise import initial_state
 from estimator.lie import pose_plus_jacobian
@@ -37,8 +38,10 @@ TOLERANCE = 1e-12
 class _Objective:
     """Residuals and sparse Jacobian over params = [state perturbation (n), delta_1 .. delta_N (6 each)]."""
 
-    def __init__(self, problem: CalibrationProblem, start: HandEyeState, P0: np.ndarray) -> None:
-        self.problem, self.start = problem, start
+    def __init__(
+        self, problem: CalibrationProblem, start: HandEyeState, P0: np.ndarray, prior: Prior | None
+    ) -> None:
+        self.problem, self.start, self.prior = problem, start, prior
         self.n = start.dim
         self.with_robot = not problem.robot_noise.is_zero
         self.prior_sqrt_info = np.linalg.cholesky(np.linalg.inv(P0)).T
@@ -56,6 +59,8 @@ class _Objective:
     def residuals(self, params: np.ndarray) -> np.ndarray:
         state = self.start.plus(params[: self.n])
         parts = [self.prior_sqrt_info @ params[: self.n]]
+        if self.prior is not None:
+            parts.append(self.prior.whitened_error(state.T_flange_cam)[0])
         for i, frame in enumerate(self.problem.frames):
             delta = self._delta(params, i)
             parts.append(-predict_frame(self.problem, state, frame, delta, jacobians=False).residual)
@@ -68,6 +73,10 @@ class _Objective:
         to_params = state.plus_jacobian(params[: self.n])
         n_frames = len(self.problem.frames)
         blocks = [[self.prior_sqrt_info] + [None] * n_frames]
+        if self.prior is not None:
+            J_prior = np.zeros((6, self.n))
+            J_prior[:, :6] = self.prior.whitened_error(state.T_flange_cam)[1]
+            blocks.append([J_prior @ to_params] + [None] * n_frames)
         for i, frame in enumerate(self.problem.frames):
             delta = self._delta(params, i)
             pred = predict_frame(self.problem, state, frame, delta)
@@ -80,7 +89,7 @@ class _Objective:
             else:
                 blocks.append(row[:1])
         if not self.with_robot:
-            blocks[0] = blocks[0][:1]
+            blocks = [row[:1] for row in blocks]
         return sparse.bmat(blocks, format="csr")
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
@@ -95,8 +104,9 @@ class _Objective:
 def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     """The batch optimum over all frames (see the module doc)."""
     start_time = time.perf_counter()
-    start, source = initial_state(problem, options)
-    objective = _Objective(problem, start, initial_covariance(start, options))
+    start_point = initial_state(problem, options)
+    start, source = start_point.state, start_point.source
+    objective = _Objective(problem, start, initial_covariance(start, options), options.prior)
     solution = least_squares(
         objective.residuals,
         np.zeros(objective.size),
@@ -124,7 +134,7 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
         landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
         residuals=marker_residuals(problem, state, rejected),
         observations_used=problem.observation_count - len(rejected),
-        observations_rejected=len(problem.rejected) + len(rejected),
+        observations_rejected=len(rejected),
         depth_scale=state.depth_scale,
         depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(cov[-1, -1])),
         diagnostics={

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimator.geometry import transform_points
+from estimator.lie import pose_minus, so3_right_jacobian_inverse
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import CalibrationProblem
 
@@ -24,12 +25,24 @@ DEFAULT_PRIOR_SIGMA_RAD = 1.0
 
 @dataclass(frozen=True)
 class Prior:
-    """A guess of T_flange_cam (4, 4) with its (6, 6) covariance (estimator.lie convention)."""
+    """A guess of T_flange_cam (4, 4) with its (6, 6) covariance (estimator.lie convention):
+    the true mount is pose_plus(T_flange_cam, e), e ~ N(0, covariance). Estimators treat it
+    as one more measurement (the filters fuse it after the frames); they start from the closed
+    form when the frames give one, so a wrong guess with an honest (wide) covariance does no harm."""
 
     T_flange_cam: np.ndarray
     covariance: np.ndarray = field(
         default_factory=lambda: np.diag([DEFAULT_PRIOR_SIGMA_M**2] * 3 + [DEFAULT_PRIOR_SIGMA_RAD**2] * 3)
     )
+
+    def whitened_error(self, T_flange_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """L e (6,) with e = pose_minus(T_flange_cam, self.T_flange_cam), L^T L = inv(covariance),
+        and its (6, 6) Jacobian with respect to the local perturbation of T_flange_cam."""
+        L = np.linalg.cholesky(np.linalg.inv(self.covariance)).T
+        e = pose_minus(T_flange_cam, self.T_flange_cam)
+        J = np.eye(6)
+        J[3:, 3:] = so3_right_jacobian_inverse(e[3:])
+        return L @ e, L @ J
 
 
 @dataclass(frozen=True)
@@ -69,7 +82,8 @@ class Calibration:
     covariance: (6, 6), or None when the method gives no uncertainty (the OpenCV baselines).
     T_base_board: (4, 4) board pose in the base frame (board model), landmarks_base:
     {marker_id: (4, 3) corners in the base frame} (landmark model), one of them or both.
-    observations_used / observations_rejected: markers over all frames. diagnostics: at
+    observations_used / observations_rejected: markers over all frames that the method used / left
+    out (frames without markers are in CalibrationProblem.rejected). diagnostics: at
     least 'iterations' and 'time_s'; 'observability' when computed. warnings: plain words.
     """
 

@@ -27,6 +27,7 @@ from estimator.calibration import (
     DEFAULT_PRIOR_SIGMA_RAD,
     Calibration,
     MethodOptions,
+    Prior,
     landmarks_by_marker,
     marker_residuals,
 )
@@ -48,16 +49,34 @@ DEFAULT_LANDMARK_SIGMA_M = 0.01
 
 
 def initial_covariance(state: HandEyeState, options: MethodOptions) -> np.ndarray:
-    """(dim, dim) starting covariance: the prior's for T_flange_cam (default: wide), wide for the board
-    pose, DEFAULT_LANDMARK_SIGMA_M for landmarks, DEPTH_SCALE_PRIOR_SIGMA for the depth scale."""
+    """(dim, dim) starting covariance: wide for T_flange_cam and the board pose (a user's prior is
+    fused by apply_prior), DEFAULT_LANDMARK_SIGMA_M for landmarks, DEPTH_SCALE_PRIOR_SIGMA for the
+    depth scale."""
     wide_pose = np.array([DEFAULT_PRIOR_SIGMA_M**2] * 3 + [DEFAULT_PRIOR_SIGMA_RAD**2] * 3)
     diag = np.full(state.dim, DEFAULT_LANDMARK_SIGMA_M**2)
     diag[6:12] = wide_pose if state.T_base_board is not None else diag[6:12]
     if state.depth_scale is not None:
         diag[-1] = DEPTH_SCALE_PRIOR_SIGMA**2
-    P = np.diag(diag)
-    P[:6, :6] = options.prior.covariance if options.prior is not None else np.diag(wide_pose)
-    return P
+    diag[:6] = wide_pose
+    return np.diag(diag)
+
+
+def apply_prior(state: HandEyeState, P: np.ndarray, prior: Prior) -> tuple[HandEyeState, np.ndarray]:
+    """Fuse a prior on T_flange_cam as a measurement (iterated to convergence, it is nearly linear)."""
+    n = state.dim
+    info = np.linalg.inv(P)
+    a = np.zeros(n)
+    for _ in range(IEKF_MAX_ITERATIONS):
+        error, J = prior.whitened_error(state.plus(a).T_flange_cam)
+        H = np.zeros((6, n))
+        H[:, :6] = J @ pose_plus_jacobian(a[:6])
+        P_post = np.linalg.inv(info + H.T @ H)
+        a_next = P_post @ (H.T @ (H @ a - error))
+        step = np.linalg.norm(a_next - a)
+        a = a_next
+        if step < IEKF_TOLERANCE:
+            break
+    return state.plus(a), 0.5 * (P_post + P_post.T)
 
 
 def _marker_rows(frame: FrameMeasurements) -> list[slice]:
@@ -85,43 +104,64 @@ def gate_markers(
     return keep, failed
 
 
-def update_frame(
+def update(
     problem: CalibrationProblem,
     state: HandEyeState,
     P: np.ndarray,
-    frame: FrameMeasurements,
+    frames: list[FrameMeasurements],
     max_iterations: int,
     robust: bool,
-) -> tuple[HandEyeState, np.ndarray, int, list[int]]:
-    """One waypoint's (iterated) update. Returns the new state, its covariance, the
-    iterations run and the marker IDs rejected by the gate."""
+) -> tuple[HandEyeState, np.ndarray, int, set[tuple[int, int]]]:
+    """One (iterated) update with the markers of one or more waypoints, each with its own
+    flange pose error. Returns the new state, its covariance, the iterations run and the
+    (frame, marker_id) pairs rejected by the gate."""
     n = state.dim
-    robot_cov = problem.robot_noise.covariance()
     with_robot = not problem.robot_noise.is_zero
-    n_a = n + 6 if with_robot else n
+    k = 6 if with_robot else 0
+    n_a = n + k * len(frames)
     P_a = np.zeros((n_a, n_a))
     P_a[:n, :n] = P
-    if with_robot:
-        P_a[n:, n:] = robot_cov
+    for j in range(len(frames) if with_robot else 0):
+        P_a[n + 6 * j : n + 6 * j + 6, n + 6 * j : n + 6 * j + 6] = problem.robot_noise.covariance()
     info_prior = np.linalg.inv(P_a)
+
+    def predictions(a: np.ndarray, jacobians: bool) -> list:
+        moved = state.plus(a[:n])
+        return [
+            predict_frame(problem, moved, f, a[n + 6 * j : n + 6 * j + 6] if with_robot else None, jacobians)
+            for j, f in enumerate(frames)
+        ]
 
     def linearise(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residual and its Jacobian with respect to a (the perturbation at the prior)."""
-        pred = predict_frame(problem, state.plus(a[:n]), frame, a[n:] if with_robot else None)
-        H = pred.J_state @ state.plus_jacobian(a[:n])
-        if with_robot:
-            H = np.hstack([H, pred.J_flange @ pose_plus_jacobian(a[n:])])
-        return pred.residual, H
+        preds = predictions(a, True)
+        H = np.zeros((sum(len(p.residual) for p in preds), n_a))
+        to_a = state.plus_jacobian(a[:n])
+        row = 0
+        for j, pred in enumerate(preds):
+            rows = slice(row, row + len(pred.residual))
+            H[rows, :n] = pred.J_state @ to_a
+            if with_robot:
+                H[rows, n + 6 * j : n + 6 * j + 6] = pred.J_flange @ pose_plus_jacobian(
+                    a[n + 6 * j : n + 6 * j + 6]
+                )
+            row = rows.stop
+        return np.concatenate([p.residual for p in preds]), H
 
     def cost(a: np.ndarray) -> float:
-        pred = predict_frame(problem, state.plus(a[:n]), frame, a[n:] if with_robot else None, False)
-        return float(a @ info_prior @ a + np.sum(pred.residual[keep] ** 2))
+        residual = np.concatenate([p.residual for p in predictions(a, False)])
+        return float(a @ info_prior @ a + np.sum(residual[keep] ** 2))
 
     a = np.zeros(n_a)
     r, H = linearise(a)
-    keep, rejected = np.ones(len(r), dtype=bool), []
+    keep, rejected = np.ones(len(r), dtype=bool), set()
     if robust:
-        keep, rejected = gate_markers(frame, r, H, P_a)
+        row = 0
+        for f in frames:
+            rows = slice(row, row + sum(m.whitening.shape[0] for m in f.markers))
+            keep[rows], failed = gate_markers(f, r[rows], H[rows], P_a)
+            rejected |= {(f.frame, marker_id) for marker_id in failed}
+            row = rows.stop
     for iteration in range(1, max_iterations + 1):
         H, r = H[keep], r[keep]
         P_post = np.linalg.inv(info_prior + H.T @ H)
@@ -151,14 +191,22 @@ def _backtrack(cost: Callable[[np.ndarray], float], a: np.ndarray, a_next: np.nd
 def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bool) -> Calibration:
     """ekf (iterated=False) or iekf over all frames in order."""
     start = time.perf_counter()
-    state, source = initial_state(problem, options)
+    start_point = initial_state(problem, options)
+    state, source = start_point.state, start_point.source
     P = initial_covariance(state, options)
     iterations, rejected = 0, set()
     max_iterations = IEKF_MAX_ITERATIONS if iterated else 1
-    for frame in problem.frames:
-        state, P, used, failed = update_frame(problem, state, P, frame, max_iterations, options.robust)
+    # The first update takes the frames the closed form came from together: before they are all
+    # in, the mount is not determined and a step would follow unconstrained directions.
+    first = max(start_point.frames_used, 1)
+    for frames in [problem.frames[:first]] + [[f] for f in problem.frames[first:]]:
+        state, P, used, failed = update(problem, state, P, frames, max_iterations, options.robust)
         iterations += used
-        rejected |= {(frame.frame, marker_id) for marker_id in failed}
+        rejected |= failed
+    # The prior joins last: fused first, a wide prior far from the closed-form start would
+    # drag the linearisation point away before the data pin the mount down.
+    if options.prior is not None:
+        state, P = apply_prior(state, P, options.prior)
     elapsed = time.perf_counter() - start
     return Calibration(
         method="iekf" if iterated else "ekf",
@@ -168,7 +216,7 @@ def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bo
         landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
         residuals=marker_residuals(problem, state, rejected),
         observations_used=problem.observation_count - len(rejected),
-        observations_rejected=len(problem.rejected) + len(rejected),
+        observations_rejected=len(rejected),
         depth_scale=state.depth_scale,
         depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(P[-1, -1])),
         diagnostics={

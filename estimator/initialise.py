@@ -119,21 +119,32 @@ def no_rotation_message(problem: CalibrationProblem) -> str:
     )
 
 
-def initial_state(problem: CalibrationProblem, options: MethodOptions) -> tuple[HandEyeState, str]:
-    """Starting state and where it came from. Closed form when the first frames allow it,
-    else the prior's mean (the board pose then from PnP); CalibrationInputError without either."""
+@dataclass
+class Start:
+    """Where an estimator starts: the state, where it came from, and how many first frames
+    the closed form used (0 when it started from the prior)."""
+
+    state: HandEyeState
+    source: str
+    frames_used: int
+
+
+def initial_state(problem: CalibrationProblem, options: MethodOptions) -> Start:
+    """Closed form when the first frames allow it, else the prior's mean (the board pose then
+    from PnP); CalibrationInputError without either."""
     solution = closed_form(problem)
     if solution is not None:
-        X, B = solution.T_flange_cam, solution.T_base_board
-        source = f"closed form from the first {solution.frames_used} frames"
+        X, B, used = solution.T_flange_cam, solution.T_base_board, solution.frames_used
+        source = f"closed form from the first {used} frames"
     elif options.prior is not None:
-        X = options.prior.T_flange_cam
+        X, used = options.prior.T_flange_cam, 0
         B = mean_pose([f.T_base_flange @ X @ board_pose_pnp(problem, f) for f in problem.frames])
         source = "prior (the frames do not determine a closed-form solution)"
     else:
         raise CalibrationInputError(no_rotation_message(problem))
     scale = 1.0 if options.estimate_depth_scale else None
     if options.map_model == "board":
-        return HandEyeState(X, T_base_board=B, depth_scale=scale), source
+        return Start(HandEyeState(X, T_base_board=B, depth_scale=scale), source, used)
     corners = np.concatenate([problem.board.marker_corners(i) for i in problem.marker_ids])
-    return HandEyeState(X, landmarks_base=corners @ B[:3, :3].T + B[:3, 3], depth_scale=scale), source
+    landmarks = corners @ B[:3, :3].T + B[:3, 3]
+    return Start(HandEyeState(X, landmarks_base=landmarks, depth_scale=scale), source, used)

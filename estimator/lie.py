@@ -27,6 +27,15 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def skew_rows(v: np.ndarray) -> np.ndarray:
+    """(P, 3) -> (P, 3, 3) cross-product matrices."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
 def so3_exp(w: np.ndarray) -> np.ndarray:
     """Rotation vector (3,), radians -> (3, 3) rotation (Rodrigues)."""
     angle = float(np.linalg.norm(w))

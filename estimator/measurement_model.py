@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator.camera import distort_normalized
-from estimator.lie import pose_minus, pose_plus, pose_plus_jacobian
+from estimator.lie import pose_minus, pose_plus, pose_plus_jacobian, skew_rows
 from estimator.problem import CalibrationProblem, FrameMeasurements
 
 
@@ -90,15 +90,6 @@ class FramePrediction:
     points_cam: np.ndarray
 
 
-def _skew_rows(v: np.ndarray) -> np.ndarray:
-    """(P, 3) -> (P, 3, 3) cross-product matrices."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
-
-
 def _projection(p_cam: np.ndarray, problem: CalibrationProblem) -> tuple[np.ndarray, np.ndarray]:
     """(P, 3) camera points -> (P, 2) pixels and (P, 2, 3) d(pixel)/d(p_cam)."""
     k = problem.intrinsics
@@ -155,8 +146,8 @@ def predict_frame(
     RXt = R_X.T
     RXt_RFt = RXt @ R_F.T
     # d p_cam / d (perturbations), each (P, 3, k)
-    d_cam_d_X = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), _skew_rows(p_cam)], axis=2)
-    d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ _skew_rows(p_flange)], axis=2)
+    d_cam_d_X = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
+    d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
     # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
     d_meas_d_cam = np.concatenate([d_pix, scale * np.broadcast_to([0.0, 0.0, 1.0], (P, 1, 3))], axis=1)
 
@@ -166,7 +157,7 @@ def predict_frame(
     d_meas_d_base = d_meas_d_cam @ RXt_RFt
     if state.T_base_board is not None:
         d_base_d_B = np.concatenate(
-            [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ _skew_rows(corners_board)], axis=2
+            [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ skew_rows(corners_board)], axis=2
         )
         J_state_points[:, :, 6:12] = d_meas_d_base @ d_base_d_B
     else:

@@ -49,17 +49,17 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimator.calibration import Calibration, MethodOptions, marker_residuals
+from estimator.filters import GATE_PROBABILITY
 from estimator.geometry import invert, make_transform
 from estimator.initialise import initial_state
-from estimator.lie import pose_plus, pose_plus_jacobian, skew
+from estimator.lie import pose_plus, pose_plus_jacobian, skew, skew_rows
 from estimator.measurement_model import HandEyeState
 from estimator.observations import FrameObservations
 from estimator.problem import CalibrationInputError, CalibrationProblem
 
 INITIAL_SIGMA_M = 0.05
 INITIAL_SIGMA_RAD = float(np.radians(5.0))
-# A marker whose innovation exceeds this chi-square quantile (3 dof) is rejected (robust option).
-GATE_PROBABILITY = 1.0 - 1e-4
+# A marker whose innovation exceeds the filters' chi-square quantile (3 dof) is rejected (robust option).
 GATE_NIS = float(chi2.ppf(GATE_PROBABILITY, 3))
 POSE = slice(0, 6)
 DELTA = slice(6, 12)
@@ -90,15 +90,6 @@ class FrameStep:
     state: SeedEkfState
     used: list[int]
     rejected: list[int]
-
-
-def _skew_rows(v: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 3) cross-product matrices."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
 
 
 def motion(
@@ -149,7 +140,7 @@ def measure(T_base_cam: np.ndarray, landmarks_base: np.ndarray) -> tuple[np.ndar
     each landmark (the same for all)."""
     R = T_base_cam[:3, :3]
     p_cam = (landmarks_base - T_base_cam[:3, 3]) @ R
-    H_pose = np.concatenate([np.broadcast_to(-R.T, (len(p_cam), 3, 3)), _skew_rows(p_cam)], axis=2)
+    H_pose = np.concatenate([np.broadcast_to(-R.T, (len(p_cam), 3, 3)), skew_rows(p_cam)], axis=2)
     return p_cam, H_pose, R.T
 
 
@@ -215,7 +206,7 @@ def add_landmarks(
     n, dim = len(rows), len(state.covariance)
     L = np.zeros((n, 3, dim))
     L[:, :, :3] = np.eye(3)
-    L[:, :, 3:6] = -R @ _skew_rows(points_cam)
+    L[:, :, 3:6] = -R @ skew_rows(points_cam)
     L = L.reshape(3 * n, dim)
     columns = _landmark_columns(rows)
     P = state.covariance.copy()
@@ -258,7 +249,7 @@ def initial_filter_state(problem: CalibrationProblem, options: MethodOptions) ->
     if options.prior is not None:
         X0, P_X = options.prior.T_flange_cam, options.prior.covariance
     else:
-        X0 = initial_state(problem, options)[0].T_flange_cam
+        X0 = initial_state(problem, options).state.T_flange_cam
         P_X = np.diag([INITIAL_SIGMA_M**2] * 3 + [INITIAL_SIGMA_RAD**2] * 3)
     k = len(problem.marker_ids)
     P = np.zeros((LANDMARKS + 3 * k, LANDMARKS + 3 * k))

@@ -60,7 +60,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2
 
 from estimator.calibration import Calibration, MethodOptions, landmarks_by_marker, marker_residuals
-from estimator.filters import GATE_PROBABILITY, _marker_rows, initial_covariance
+from estimator.filters import GATE_PROBABILITY, _marker_rows, apply_prior, initial_covariance
 from estimator.initialise import initial_state
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import CalibrationProblem, FrameMeasurements
@@ -141,12 +141,17 @@ def ukf(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     """Unscented Kalman filter over all frames in order; starts where ekf and iekf start.
     Returns method 'ukf', T_flange_cam with its (6, 6) covariance (estimator.lie convention)."""
     start = time.perf_counter()
-    state, source = initial_state(problem, options)
+    start_point = initial_state(problem, options)
+    state, source = start_point.state, start_point.source
     P = initial_covariance(state, options)
     rejected: set[tuple[int, int]] = set()
     for frame in problem.frames:
         state, P, failed = update_frame(problem, state, P, frame, options.robust)
         rejected |= {(frame.frame, marker_id) for marker_id in failed}
+    # The prior joins last: fused first, a wide prior far from the closed-form start would
+    # drag the linearisation point away before the data pin the mount down.
+    if options.prior is not None:
+        state, P = apply_prior(state, P, options.prior)
     elapsed = time.perf_counter() - start
     return Calibration(
         method="ukf",
@@ -156,7 +161,7 @@ def ukf(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
         landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
         residuals=marker_residuals(problem, state, rejected),
         observations_used=problem.observation_count - len(rejected),
-        observations_rejected=len(problem.rejected) + len(rejected),
+        observations_rejected=len(rejected),
         depth_scale=state.depth_scale,
         depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(P[-1, -1])),
         diagnostics={

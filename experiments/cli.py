@@ -11,8 +11,19 @@ import numpy as np
 from estimator.board import BoardDefinitionError
 from estimator.dataset import DatasetError
 from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
+from estimator.observations import ObservationCacheError
+from estimator.problem import CalibrationInputError
 
-USER_ERRORS = (BoardDefinitionError, DatasetError, FileExistsError, ValueError, FileNotFoundError)
+USER_ERRORS = (
+    BoardDefinitionError,
+    DatasetError,
+    ObservationCacheError,
+    CalibrationInputError,
+    FileExistsError,
+    ValueError,
+    FileNotFoundError,
+    IsADirectoryError,
+)
 
 
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
@@ -45,6 +56,80 @@ def _add_detect(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def _add_calibrate(sub: argparse._SubParsersAction) -> None:
+    from estimator.methods import DEFAULT_METHOD, METHODS
+
+    p = sub.add_parser(
+        "calibrate",
+        help="estimate T_flange_cam (camera in the flange frame, OpenCV cam2gripper) from a dataset",
+    )
+    p.add_argument(
+        "dataset", type=Path, help="dataset folder (observations from its detections.json if valid)"
+    )
+    p.add_argument(
+        "--method",
+        default=DEFAULT_METHOD,
+        choices=[*METHODS, "all"],
+        metavar="NAME|all",
+        help=f"{', '.join(METHODS)}, or all to compare them (default: %(default)s)",
+    )
+    p.add_argument("--json", type=Path, metavar="OUT", help="also write the results to this JSON file")
+    p.add_argument(
+        "--map",
+        default="board",
+        choices=["board", "landmarks"],
+        help="board: the board pose with its known geometry; landmarks: every corner a free point",
+    )
+    p.add_argument("--depth-scale", action="store_true", help="also estimate a depth scale factor")
+    p.add_argument("--no-depth", action="store_true", help="use only the pixels, not the depth")
+    p.add_argument(
+        "--prior",
+        type=Path,
+        metavar="FILE",
+        help="JSON with 'T_flange_cam' (4x4, m) and optional 'covariance' (6x6), e.g. a --json output",
+    )
+    p.add_argument(
+        "--robot-sigma-mm",
+        type=_non_negative,
+        metavar="X",
+        help="1-sigma of the reported flange position per base axis, mm (default: the dataset's)",
+    )
+    p.add_argument(
+        "--robot-sigma-deg",
+        type=_non_negative,
+        metavar="Y",
+        help="1-sigma of the reported flange rotation per flange axis, degrees (default: the dataset's)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
+    from estimator.calibration import Calibration
+    from experiments.calibration import CalibrateSettings, calibrate_dataset
+
+    settings = CalibrateSettings(
+        method=args.method,
+        map_model=args.map,
+        estimate_depth_scale=args.depth_scale,
+        use_depth=not args.no_depth,
+        prior_file=args.prior,
+        robot_sigma_mm=args.robot_sigma_mm,
+        robot_sigma_deg=args.robot_sigma_deg,
+    )
+    results = calibrate_dataset(args.dataset, settings, args.json, args.quiet)
+    if not any(isinstance(r, Calibration) for r in results):
+        print("hec: error: no method could calibrate from these observations", file=sys.stderr)
+        return 2
+    return 0
+
+
 def _add_board(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("board", help="write a true-scale printable board (PNG or PDF)")
     p.add_argument("--out", required=True, type=Path, help="board.pdf or board.png")
@@ -53,7 +138,9 @@ def _add_board(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="the main job: simulate the default cell and report against ground truth")
+    p = sub.add_parser(
+        "demo", help="the main job: simulate the default cell, detect, calibrate, report against ground truth"
+    )
     p.add_argument(
         "--out", type=Path, default=Path("runs/demo"), help="dataset folder (replaced if it exists)"
     )
@@ -79,12 +166,24 @@ def _print_simulation(result: object, T_flange_cam: np.ndarray) -> None:
         print(f"preview: {path}")
 
 
+def _demo_detect_and_calibrate(dataset: Path) -> None:
+    """The demo after simulation: detect and grade, then calibrate with ekf."""
+    from experiments.calibration import CalibrateSettings, calibrate_dataset
+    from experiments.detection import run_detect
+
+    print()
+    observations = run_detect(dataset, overlay=True, quiet=True)
+    print()
+    calibrate_dataset(dataset, CalibrateSettings(method="ekf"), quiet=True, observations=observations)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="hec", description="Eye-in-hand calibration testbench and tool.")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_demo(sub)
     _add_simulate(sub)
     _add_detect(sub)
+    _add_calibrate(sub)
     _add_board(sub)
     args = parser.parse_args(argv)
     try:
@@ -101,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             passes = tuple(p.strip() for p in args.passes.split(",") if p.strip())
             run_detect(args.dataset, args.overlay, passes, args.quiet)
             return 0
+        if args.command == "calibrate":
+            return _run_calibrate(args)
         from sim.scenario import ScenarioError, load_scenario
         from sim.simulate import SimulationError, simulate
         from sim.trajectory import WaypointFileError
@@ -118,10 +219,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         _print_simulation(result, scenario.mount.transform())
         if args.command == "demo":
-            from experiments.detection import run_detect
-
-            print()
-            run_detect(result.out_dir, overlay=True, quiet=True)
+            _demo_detect_and_calibrate(result.out_dir)
         return 0
     except USER_ERRORS as exc:
         print(f"hec: error: {exc}", file=sys.stderr)

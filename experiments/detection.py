@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -11,12 +12,15 @@ import numpy as np
 from tqdm import tqdm
 
 from estimator.camera import CameraIntrinsics
-from estimator.dataset import Frame, load_dataset
+from estimator.dataset import Dataset, Frame, load_dataset
 from estimator.detect import DEFAULT_PASSES, DetectorSettings
 from estimator.grading import grade_observations
 from estimator.observations import (
+    CACHE_FILE,
     FrameObservations,
+    ObservationCacheError,
     dataset_depth_noise,
+    load_observations,
     observe_dataset,
     save_observations,
 )
@@ -57,29 +61,58 @@ def _write_overlay(
     tmp.replace(path)
 
 
+def detect_and_cache(
+    dataset: Dataset,
+    settings: DetectorSettings,
+    quiet: bool = False,
+    on_frame: Callable[[FrameObservations, Frame | None], None] | None = None,
+) -> tuple[list[FrameObservations], Path]:
+    """Detect every frame with a progress bar (unless quiet), write DATASET/detections.json.
+    on_frame: called after each frame. Returns the observations and the cache path."""
+    depth_noise = dataset_depth_noise(dataset)
+    if "depth_noise" not in dataset.metadata:
+        print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
+    with tqdm(total=len(dataset), desc="detect", unit="frame", disable=quiet, file=sys.stderr) as bar:
+
+        def after_frame(obs: FrameObservations, frame: Frame | None) -> None:
+            if on_frame is not None:
+                on_frame(obs, frame)
+            bar.update()
+
+        observations = observe_dataset(dataset, settings, depth_noise, progress=after_frame)
+    return observations, save_observations(dataset.root, observations, settings, depth_noise)
+
+
+def cached_or_detected(dataset: Dataset, quiet: bool = False) -> tuple[list[FrameObservations], str]:
+    """The observations in DATASET/detections.json if it is valid for this dataset (made with any
+    detector settings), else detected now with the default settings and cached like `hec detect`.
+    Returns them and where they came from, in words."""
+    try:
+        observations, _, _ = load_observations(dataset.root)
+        return observations, f"from {dataset.root / CACHE_FILE}"
+    except ObservationCacheError as exc:
+        reason = "no detections cache" if not (dataset.root / CACHE_FILE).exists() else str(exc)
+    print(f"note: {reason}; detecting the board in {len(dataset)} frames", file=sys.stderr)
+    observations, cache = detect_and_cache(dataset, DetectorSettings(), quiet)
+    return observations, f"detected now, cached in {cache}"
+
+
 def run_detect(
     dataset_path: Path, overlay: bool = False, passes: tuple[str, ...] = DEFAULT_PASSES, quiet: bool = False
 ) -> list[FrameObservations]:
     """Detect every frame, write DATASET/detections.json (and overlays), print the per-frame table."""
     dataset = load_dataset(dataset_path)
     settings = DetectorSettings(passes=passes)
-    depth_noise = dataset_depth_noise(dataset)
-    if "depth_noise" not in dataset.metadata:
-        print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
     overlay_dir = dataset.root / OVERLAY_DIR
     if overlay:
         overlay_dir.mkdir(exist_ok=True)
     start = time.perf_counter()
-    with tqdm(total=len(dataset), desc="detect", unit="frame", disable=quiet, file=sys.stderr) as bar:
 
-        def after_frame(obs: FrameObservations, frame: Frame | None) -> None:
-            if overlay:
-                _write_overlay(overlay_dir, obs, frame, dataset.intrinsics)
-            bar.update()
+    def write_overlay(obs: FrameObservations, frame: Frame | None) -> None:
+        _write_overlay(overlay_dir, obs, frame, dataset.intrinsics)
 
-        observations = observe_dataset(dataset, settings, depth_noise, progress=after_frame)
+    observations, cache = detect_and_cache(dataset, settings, quiet, write_overlay if overlay else None)
     elapsed = time.perf_counter() - start
-    cache = save_observations(dataset.root, observations, settings, depth_noise)
     board_ids = dataset.board.marker_ids
     print("frame found   missing corner_sd depth_sd  passes           notes")
     print("                       [px]      [mm]")

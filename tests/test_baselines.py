@@ -14,8 +14,8 @@ from estimator.geometry import pose_error
 from estimator.observations import FrameObservations
 from estimator.problem import CalibrationInputError, CalibrationProblem, build_problem
 from estimator.synthetic import SyntheticNoise, synthetic_observations
+from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 from sim.trajectory import rotation_rich_waypoints
-from tests.estimation_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 
 DISTANCE_FACTORS = (0.85, 1.0, 1.2)
 # Largest errors of T_flange_cam (mm, degrees) allowed with the default noise. Measured over 20 seeds

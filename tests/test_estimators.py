@@ -18,8 +18,8 @@ from estimator.methods import METHODS, run_method
 from estimator.observability import observability
 from estimator.problem import CalibrationInputError, RobotPoseNoise, build_problem
 from estimator.synthetic import SyntheticNoise, synthetic_observations
+from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 from sim.trajectory import look_at_board
-from tests.estimation_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 MODEL_METHODS = ("ekf", "iekf", "batch")
 
@@ -164,3 +164,13 @@ def test_bad_input_gets_a_clear_error() -> None:
         build_problem(observations, other_board, INTRINSICS)
     with pytest.raises(ValueError, match="unknown method"):
         run_method("kalman", problem, MethodOptions(), observations)
+
+
+@pytest.mark.parametrize("method", ["ekf", "iekf", "ukf", "batch"])
+def test_a_tight_prior_wins_over_the_data(method: str) -> None:
+    """A prior is a measurement with its own mean: 5 mm off with 0.01 mm sigma, the result is the prior."""
+    problem, observations, X = _problem(17)
+    guess = X @ make_transform(np.eye(3), [0.005, 0.0, 0.0])
+    tight = Prior(guess, np.diag([1e-5**2] * 3 + [np.radians(0.001) ** 2] * 3))
+    result = run_method(method, problem, MethodOptions(prior=tight), observations)
+    assert pose_error(result.T_flange_cam, guess)[0] < 5e-5, method

@@ -17,7 +17,7 @@ from estimator.lie import (
 )
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import build_problem
-from tests.estimation_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 STEP = 1e-6
 

@@ -22,7 +22,7 @@ from estimator.seed_ekf import (
     predict,
     seed_ekf,
 )
-from tests.estimation_scenes import BOARD, INTRINSICS, random_mount, scene
+from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
 STEP = 1e-6
 

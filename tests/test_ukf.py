@@ -10,7 +10,7 @@ import pytest
 
 from estimator.calibration import MethodOptions
 from estimator.filters import initial_covariance
-from estimator.filters import update_frame as ekf_update_frame
+from estimator.filters import update as ekf_update
 from estimator.geometry import transform_points
 from estimator.initialise import initial_state
 from estimator.lie import pose_minus
@@ -19,7 +19,7 @@ from estimator.observability import observability
 from estimator.problem import RobotPoseNoise, build_problem
 from estimator.synthetic import SyntheticNoise
 from estimator.ukf import ukf, update_frame
-from tests.estimation_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 # Measured over 3 x 30 random mounts (default noise, board model): RMS error / CRB 0.95-1.02 for
 # translation and 0.91-1.03 for rotation (ekf: 0.94-1.01, 0.91-1.03), mean NEES 5.6-5.8 (6 dof).
@@ -45,7 +45,7 @@ def test_update_matches_ekf_when_the_covariance_is_small() -> None:
     P = np.diag(rng.uniform(0.5, 2.0, state.dim) * 1e-4**2)
     frame = problem.frames[5]
     new, P_new, rejected = update_frame(problem, state, P, frame, robust=True)
-    ekf_new, ekf_P, _, _ = ekf_update_frame(problem, state, P, frame, 1, True)
+    ekf_new, ekf_P, _, _ = ekf_update(problem, state, P, [frame], 1, True)
     step, ekf_step = new.minus(state), ekf_new.minus(state)
     assert rejected == []
     assert np.linalg.norm(step - ekf_step) < 1e-3 * np.linalg.norm(ekf_step)
@@ -59,7 +59,7 @@ def test_covariance_stays_positive_from_the_wide_start(map_model: str) -> None:
     rng = np.random.default_rng(4)
     problem = build_problem(scene(random_mount(rng), rng), BOARD, INTRINSICS)
     options = MethodOptions(map_model=map_model, estimate_depth_scale=True)
-    state, _ = initial_state(problem, options)
+    state = initial_state(problem, options).state
     P = initial_covariance(state, options)
     for frame in problem.frames[:3]:
         state, P_new, _ = update_frame(problem, state, P, frame, robust=True)

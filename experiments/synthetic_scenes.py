@@ -1,4 +1,5 @@
-"""Measurement-level test scenes: the default scenario's geometry with a chosen mount."""
+"""Measurement-level scenes for tests and Monte-Carlo runs: the default scenario's board,
+camera and views (no rendering, no inverse kinematics) with a chosen mount."""
 
 from __future__ import annotations
 
@@ -31,10 +32,19 @@ def scene(
     noise: SyntheticNoise | None = None,
     exact: bool = False,
     trajectory: str = "rotation-rich",
+    views: int | None = None,
 ) -> list[FrameObservations]:
-    """Synthetic observations of the default board along the default (or the paper's) views."""
+    """Synthetic observations of the default board along the default (or the paper's) views;
+    views: keep only the first this many."""
     make = rotation_rich_waypoints if trajectory == "rotation-rich" else paper_waypoints
     flange_poses = [w.T_base_flange for w in make(T_BASE_BOARD, T_flange_cam, SCENARIO.trajectory.distance_m)]
     return synthetic_observations(
-        BOARD, INTRINSICS, T_flange_cam, T_BASE_BOARD, flange_poses, noise or SyntheticNoise(), rng, exact
+        BOARD,
+        INTRINSICS,
+        T_flange_cam,
+        T_BASE_BOARD,
+        flange_poses[:views],
+        noise or SyntheticNoise(),
+        rng,
+        exact,
     )

@@ -1,0 +1,231 @@
+"""`hec calibrate` end to end on the default simulated dataset: the printed report, the JSON, every method
+side by side, and clear errors for bad priors and too few frames.
+
+The dataset is copied once per module (the first run detects and writes its cache; the rest reuse it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimator.dataset import load_dataset
+from estimator.geometry import pose_error
+from estimator.methods import METHODS
+from estimator.observations import CACHE_FILE, load_observations, save_observations
+from estimator.problem import CalibrationInputError
+from experiments.calibration import write_json
+from experiments.cli import main
+
+JSON_KEYS = {
+    "method",
+    "T_flange_cam",
+    "covariance",
+    "covariance_convention",
+    "sigma_translation_mm",
+    "sigma_rotation_deg",
+    "residual_rms_px",
+    "error_translation_mm",
+    "error_rotation_deg",
+    "translation_mm",
+    "quaternion_wxyz",
+    "rotation_vector_rad",
+    "rpy_deg",
+    "T_base_board",
+    "observations_used",
+    "observations_rejected",
+    "frame_residuals",
+    "marker_residuals",
+    "iterations",
+    "time_s",
+    "observability",
+    "warnings",
+}
+
+
+def _run(argv: list[str]) -> tuple[int, str, str]:
+    """main(argv) with stdout and stderr captured."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def dataset(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A copy of the default dataset without a detections cache."""
+    copy = tmp_path_factory.mktemp("calibrate") / "default"
+    shutil.copytree(default_dataset, copy)
+    (copy / CACHE_FILE).unlink(missing_ok=True)
+    return copy
+
+
+@pytest.fixture(scope="module")
+def first_run(dataset: Path) -> tuple[int, str, str, Path]:
+    """`hec calibrate DATASET --json OUT` on the copy: detects, caches, calibrates with ekf."""
+    out = dataset.parent / "ekf.json"
+    return (*_run(["calibrate", str(dataset), "--json", str(out), "--quiet"]), out)
+
+
+def test_first_run_detects_and_caches_then_reuses_the_cache(dataset: Path, first_run) -> None:
+    code, stdout, stderr, _ = first_run
+    assert code == 0, stderr
+    assert "no detections cache" in stderr
+    assert (dataset / CACHE_FILE).is_file()
+    code, stdout, stderr = _run(["calibrate", str(dataset), "--quiet"])
+    assert code == 0, stderr
+    assert f"observations from {dataset / CACHE_FILE}" in stdout
+    assert "detecting" not in stderr
+
+
+def test_prints_the_transform_its_meaning_uncertainty_and_errors(first_run) -> None:
+    code, stdout, stderr, _ = first_run
+    assert code == 0, stderr
+    for text in (
+        "method: ekf",
+        "in the flange (tool0) frame; OpenCV's cam2gripper",
+        "T_base_cam = T_base_flange @ T_flange_cam",
+        "translation [mm]:",
+        "quaternion (w x y z):",
+        "rotation vector [rad]:",
+        "roll-pitch-yaw [deg] (about the fixed flange axes x, y, z",
+        "uncertainty (1 sigma): translation [mm] along flange x y z:",
+        "Cramer-Rao bound",
+        "residuals (at the reported flange poses): RMS",
+        "worst frames:",
+        "observations: 136 used, 0 rejected",
+        "vs ground truth: translation error",
+    ):
+        assert text in stdout
+    matrix_rows = [line for line in stdout.splitlines() if line.startswith("  [")]
+    assert len(matrix_rows) == 4 and matrix_rows[3].split() == [
+        "[+0.000000",
+        "+0.000000",
+        "+0.000000",
+        "+1.000000]",
+    ]
+
+
+def test_json_has_the_keys_and_ekf_is_within_1mm_and_0_1deg(dataset: Path, first_run) -> None:
+    code, _, stderr, out = first_run
+    assert code == 0, stderr
+    data = json.loads(out.read_text())
+    assert JSON_KEYS <= set(data), JSON_KEYS - set(data)
+    assert data["method"] == "ekf"
+    T = np.array(data["T_flange_cam"])
+    dt, dr = pose_error(T, load_dataset(dataset).ground_truth.T_flange_cam)
+    assert dt < 1e-3 and np.degrees(dr) < 0.1, (1e3 * dt, np.degrees(dr))
+    assert data["error_translation_mm"] == pytest.approx(1e3 * dt)
+    assert data["error_rotation_deg"] == pytest.approx(np.degrees(dr))
+    cov = np.array(data["covariance"])
+    assert cov.shape == (6, 6)
+    assert data["sigma_translation_mm"] == pytest.approx(1e3 * np.sqrt(np.diag(cov)[:3]))
+    assert "flange axes" in data["covariance_convention"] and "camera axes" in data["covariance_convention"]
+    assert data["translation_mm"] == pytest.approx(1e3 * T[:3, 3])
+    assert len(data["marker_residuals"]) == 136 and len(data["frame_residuals"]) == 17
+    assert data["observability"]["observable"] is True
+    assert not list(out.parent.glob(f".{out.name}.*")), "temporary file left behind"
+
+
+def test_method_all_prints_a_row_per_method_and_a_failure_row(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(problem, options, observations):
+        raise CalibrationInputError("opencv-tsai: the views do not span two axes")
+
+    monkeypatch.setitem(METHODS, "opencv-tsai", broken)
+    out = tmp_path / "all.json"
+    code, stdout, stderr = _run(["calibrate", str(dataset), "--method", "all", "--json", str(out), "--quiet"])
+    assert code == 0, stderr
+    lines = stdout.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("method "))
+    assert "err mm" in lines[header] and "sigma_t mm" in lines[header]
+    rows = {line.split()[0]: line for line in lines[header + 1 : header + 1 + len(METHODS)]}
+    assert list(rows) == list(METHODS)
+    assert rows["opencv-tsai"].endswith("failed: the views do not span two axes")
+    assert "failed" not in rows["ekf"] and "failed" not in rows["batch"]
+    results = json.loads(out.read_text())["results"]
+    assert [r["method"] for r in results] == list(METHODS)
+    assert results[list(METHODS).index("opencv-tsai")] == {
+        "method": "opencv-tsai",
+        "error": "opencv-tsai: the views do not span two axes",
+    }
+    assert JSON_KEYS <= set(results[list(METHODS).index("ekf")])
+
+
+def test_a_previous_json_output_is_a_prior(first_run, dataset: Path) -> None:
+    code, stdout, stderr = _run(["calibrate", str(dataset), "--prior", str(first_run[3]), "--quiet"])
+    assert code == 0, stderr
+    assert "vs ground truth" in stdout
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (None, "file missing"),
+        ("{not json", "not valid JSON"),
+        ('{"covariance": null}', "missing field 'T_flange_cam'"),
+        ('{"T_flange_cam": [[1, 0, 0], [0, 1, 0]]}', "field 'T_flange_cam' must be a 4x4"),
+        ('{"T_flange_cam": [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "must have a rotation (orthonormal"),
+        (
+            '{"T_flange_cam": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]], "covariance": [[1, 2]]}',
+            "field 'covariance' must be a 6x6",
+        ),
+    ],
+)
+def test_a_bad_prior_file_exits_2_naming_the_file_and_field(
+    dataset: Path, tmp_path: Path, content: str | None, words: str
+) -> None:
+    prior = tmp_path / "prior.json"
+    if content is not None:
+        prior.write_text(content)
+    code, stdout, stderr = _run(["calibrate", str(dataset), "--prior", str(prior), "--quiet"])
+    assert code == 2
+    assert stderr.startswith(f"hec: error: {prior}: ") and words in stderr, stderr
+    assert len(stderr.strip().splitlines()) == 1 and stdout == ""
+
+
+def test_too_few_frames_is_a_clear_error(dataset: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "few"
+    shutil.copytree(dataset, copy)
+    observations, settings, depth_noise = load_observations(copy)
+    kept = [
+        o if o.frame < 2 else replace(o, markers=[], problem="left out by the test") for o in observations
+    ]
+    save_observations(copy, kept, settings, depth_noise)
+    code, stdout, stderr = _run(["calibrate", str(copy), "--quiet"])
+    assert code == 2
+    assert "hec: error: too few frames: 2 usable of 17, need at least 3" in stderr, stderr
+
+
+def test_no_depth_reaches_methods_that_read_depth_from_the_observations(dataset: Path) -> None:
+    code, _, stderr = _run(["calibrate", str(dataset), "--no-depth", "--method", "seed-ekf", "--quiet"])
+    assert code == 2 and "markers with depth" in stderr
+
+
+def test_robot_noise_options_override_the_dataset(dataset: Path) -> None:
+    argv = ["calibrate", str(dataset), "--robot-sigma-mm", "0.5", "--robot-sigma-deg", "0.05", "--quiet"]
+    code, stdout, stderr = _run(argv)
+    assert code == 0, stderr
+    assert "robot pose noise 0.500 mm, 0.0500 deg (command line)" in stdout
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), pytest.raises(SystemExit) as exit_info:
+        main(["calibrate", str(dataset), "--robot-sigma-mm", "-1"])
+    assert exit_info.value.code == 2 and "must be a number >= 0" in err.getvalue()
+
+
+def test_write_json_keeps_the_old_file_when_writing_fails(tmp_path: Path) -> None:
+    path = tmp_path / "out.json"
+    write_json(path, {"value": float("nan")})
+    assert json.loads(path.read_text()) == {"value": None}
+    with pytest.raises(TypeError):
+        write_json(path, {"value": object()})
+    assert json.loads(path.read_text()) == {"value": None}
+    assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
