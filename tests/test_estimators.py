@@ -22,6 +22,7 @@ from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random
 from sim.trajectory import look_at_board
 
 MODEL_METHODS = ("ekf", "iekf", "batch")
+OPENCV_COMPARED = ("opencv-tsai", "opencv-park", "opencv-horaud", "opencv-daniilidis", "opencv-shah")
 
 
 def _problem(seed: int, **kwargs):
@@ -54,30 +55,43 @@ def test_map_models_and_depth_scale_are_exact_on_noise_free_data(options: Method
             assert abs(result.depth_scale - 1.0) < 1e-6
 
 
+def _rms(errors: list[np.ndarray]) -> tuple[float, float]:
+    """RMS translation (m) and rotation (rad) of (6,) errors."""
+    E = np.array(errors)
+    return float(np.sqrt(np.mean(np.sum(E[:, :3] ** 2, axis=1)))), float(
+        np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, axis=1)))
+    )
+
+
 def test_accuracy_is_near_the_cramer_rao_bound_and_covariances_are_honest() -> None:
     """Few trials: bounds are loose for the trial count but would catch a real loss of accuracy
-    (the benchmark, experiments/bench_estimators.py, runs hundreds)."""
+    (the benchmark, experiments/bench_estimators.py, runs 200: 1.03-1.04x, ekf 3.1x / 1.76x
+    better than the best OpenCV method)."""
     trials = 24
-    errors = {m: [] for m in MODEL_METHODS}
+    compared = (*MODEL_METHODS, *OPENCV_COMPARED)
+    errors = {m: [] for m in compared}
     nees = {m: [] for m in MODEL_METHODS}
     crb = []
     for seed in range(trials):
         problem, observations, X = _problem(100 + seed)
         crb.append(observability(problem, HandEyeState(X, T_base_board=T_BASE_BOARD)).crb_covariance)
-        for method in MODEL_METHODS:
+        for method in compared:
             result = run_method(method, problem, MethodOptions(), observations)
             e = pose_minus(result.T_flange_cam, X)
             errors[method].append(e)
-            nees[method].append(float(e @ np.linalg.solve(result.covariance, e)))
+            if method in MODEL_METHODS:
+                nees[method].append(float(e @ np.linalg.solve(result.covariance, e)))
     crb_t = np.sqrt(np.mean([np.trace(c[:3, :3]) for c in crb]))
     crb_r = np.sqrt(np.mean([np.trace(c[3:, 3:]) for c in crb]))
     band = chi2.ppf([0.005, 0.995], 6 * trials) / trials
     for method in MODEL_METHODS:
-        E = np.array(errors[method])
-        rms_t = np.sqrt(np.mean(np.sum(E[:, :3] ** 2, axis=1)))
-        rms_r = np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, axis=1)))
+        rms_t, rms_r = _rms(errors[method])
         assert rms_t < 1.4 * crb_t and rms_r < 1.4 * crb_r, (method, rms_t / crb_t, rms_r / crb_r)
         assert band[0] < np.mean(nees[method]) < band[1], (method, np.mean(nees[method]), band)
+    ekf_t, ekf_r = _rms(errors["ekf"])
+    best_t = min(_rms(errors[m])[0] for m in OPENCV_COMPARED)
+    best_r = min(_rms(errors[m])[1] for m in OPENCV_COMPARED)
+    assert best_t > 2.2 * ekf_t and best_r > 1.4 * ekf_r, (best_t / ekf_t, best_r / ekf_r)
 
 
 def test_robot_noise_in_the_model_matters() -> None:
