@@ -31,7 +31,7 @@ from estimator.calibration import (
     landmarks_by_marker,
     marker_residuals,
 )
-from estimator.initialise import initial_state
+from estimator.initialise import Start, initial_state
 from estimator.lie import pose_plus_jacobian
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import CalibrationProblem, FrameMeasurements
@@ -59,6 +59,14 @@ def initial_covariance(state: HandEyeState, options: MethodOptions) -> np.ndarra
         diag[-1] = DEPTH_SCALE_PRIOR_SIGMA**2
     diag[:6] = wide_pose
     return np.diag(diag)
+
+
+def prior_first(options: MethodOptions, start: Start) -> bool:
+    """Whether a filter fuses the user's prior before the frames. Started at the prior's mean (no
+    closed form), the prior is its initial belief: without it the unobservable directions wander.
+    Started at the closed form, the prior joins last: a wide prior far from that start would drag
+    the linearisation point away before the data pin the mount down."""
+    return options.prior is not None and start.frames_used == 0
 
 
 def apply_prior(state: HandEyeState, P: np.ndarray, prior: Prior) -> tuple[HandEyeState, np.ndarray]:
@@ -194,6 +202,8 @@ def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bo
     start_point = initial_state(problem, options)
     state, source = start_point.state, start_point.source
     P = initial_covariance(state, options)
+    if prior_first(options, start_point):
+        state, P = apply_prior(state, P, options.prior)
     iterations, rejected = 0, set()
     max_iterations = IEKF_MAX_ITERATIONS if iterated else 1
     # The first update takes the frames the closed form came from together: before they are all
@@ -203,9 +213,7 @@ def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bo
         state, P, used, failed = update(problem, state, P, frames, max_iterations, options.robust)
         iterations += used
         rejected |= failed
-    # The prior joins last: fused first, a wide prior far from the closed-form start would
-    # drag the linearisation point away before the data pin the mount down.
-    if options.prior is not None:
+    if options.prior is not None and not prior_first(options, start_point):
         state, P = apply_prior(state, P, options.prior)
     elapsed = time.perf_counter() - start
     return Calibration(

@@ -106,6 +106,10 @@ def observability(problem: CalibrationProblem, state: HandEyeState) -> Observabi
             result.warnings.append(
                 f"{what} is poorly determined (1-sigma {sigma:.2g} {unit}): {_ADVICE}, or add views"
             )
+    unobservable_translations = [w for w in result.warnings if w.startswith("translation") and "not obs" in w]
+    if len(unobservable_translations) == 3:
+        result.warnings = [w for w in result.warnings if w not in unobservable_translations]
+        result.warnings.insert(0, f"the mount's translation is not observable in any direction: {_ADVICE}")
     if result.observable:
         cov = np.linalg.inv(info)
         result.crb_covariance = 0.5 * (cov + cov.T)

@@ -60,7 +60,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2
 
 from estimator.calibration import Calibration, MethodOptions, landmarks_by_marker, marker_residuals
-from estimator.filters import GATE_PROBABILITY, _marker_rows, apply_prior, initial_covariance
+from estimator.filters import GATE_PROBABILITY, _marker_rows, apply_prior, initial_covariance, prior_first
 from estimator.initialise import initial_state
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import CalibrationProblem, FrameMeasurements
@@ -144,13 +144,13 @@ def ukf(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     start_point = initial_state(problem, options)
     state, source = start_point.state, start_point.source
     P = initial_covariance(state, options)
+    if prior_first(options, start_point):
+        state, P = apply_prior(state, P, options.prior)
     rejected: set[tuple[int, int]] = set()
     for frame in problem.frames:
         state, P, failed = update_frame(problem, state, P, frame, options.robust)
         rejected |= {(frame.frame, marker_id) for marker_id in failed}
-    # The prior joins last: fused first, a wide prior far from the closed-form start would
-    # drag the linearisation point away before the data pin the mount down.
-    if options.prior is not None:
+    if options.prior is not None and not prior_first(options, start_point):
         state, P = apply_prior(state, P, options.prior)
     elapsed = time.perf_counter() - start
     return Calibration(
