@@ -13,7 +13,7 @@ mean trace of the CRB over trials), mean NEES against the 95 % chi-square band f
 the mean of that many 6-dof values, failures. Then the time per method for 15
 waypoints x 8 markers.
 
-    .venv/bin/python -m experiments.bench_estimators [--trials 200] [--seed 0] [--workers 2]
+    .venv/bin/python -m experiments.bench_estimators [--trials 200] [--seed 0] [--workers 2] [--plot F.png]
 """
 
 from __future__ import annotations
@@ -158,6 +158,36 @@ def acceptance(summaries: dict) -> list[tuple[str, bool]]:
     return checks
 
 
+def plot(summaries: dict, nees: list[float], path: str) -> None:
+    """Two panels: RMS error / CRB per method and case, and the ekf NEES against chi-square(6)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (bars, hist) = plt.subplots(1, 2, figsize=(13, 4.8), gridspec_kw={"width_ratios": [2.2, 1]})
+    rows = {
+        m: r for m, r in summaries["robot noise"]["methods"].items() if "rms_mm" in r and r["failures"] == 0
+    }
+    names = list(rows)
+    x = np.arange(len(names))
+    bars.bar(x - 0.2, [rows[m]["ratio_translation"] for m in names], 0.4, label="translation")
+    bars.bar(x + 0.2, [rows[m]["ratio_rotation"] for m in names], 0.4, label="rotation")
+    bars.axhline(1.0, color="k", lw=1, label="Cramer-Rao bound")
+    bars.set_xticks(x, names, rotation=30, ha="right")
+    bars.set_ylabel("RMS error / Cramer-Rao bound")
+    bars.set_title(f"{len(nees)} trials, robot pose noise in data and model")
+    bars.legend()
+    grid = np.linspace(0.0, max(25.0, max(nees)), 300)
+    hist.hist(nees, bins=40, density=True, alpha=0.6, label="ekf NEES")
+    hist.plot(grid, chi2.pdf(grid, 6), "k", label="chi-square, 6 dof")
+    hist.set_xlabel("normalised estimation error squared")
+    hist.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def time_methods(rounds: int, seed: int) -> dict[str, float]:
     """Median seconds per method for TIMING_VIEWS waypoints x 8 markers."""
     rng = np.random.default_rng(seed)
@@ -184,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--timing-rounds", type=int, default=20)
     parser.add_argument("--json", help="write the summaries to this file")
+    parser.add_argument("--plot", help="write a PNG: error / bound per method, ekf NEES histogram")
     args = parser.parse_args(argv)
     summaries = {}
     with ProcessPoolExecutor(args.workers) as pool:
@@ -191,6 +222,8 @@ def main(argv: list[str] | None = None) -> int:
             jobs = pool.map(run_trial, [case] * args.trials, [args.seed] * args.trials, range(args.trials))
             trials = list(tqdm(jobs, total=args.trials, desc=case, unit="trial"))
             summaries[case] = summarise(trials)
+            if case == "robot noise":
+                ekf_nees = [t["methods"]["ekf"]["nees"] for t in trials if "nees" in t["methods"]["ekf"]]
             _print_case(case, summaries[case])
     print("\n## acceptance")
     checks = acceptance(summaries)
@@ -200,6 +233,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n## time for {TIMING_VIEWS} waypoints x 8 markers (median of {args.timing_rounds}, one process)")
     for method, seconds in times.items():
         print(f"{method:18s} {1e3 * seconds:8.1f} ms")
+    if args.plot:
+        plot(summaries, ekf_nees, args.plot)
+        print(f"plot: {args.plot}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"summaries": summaries, "acceptance": checks, "time_s": times}, f, indent=2)
