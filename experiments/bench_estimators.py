@@ -25,10 +25,10 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
@@ -42,6 +42,7 @@ from estimator.methods import METHODS, run_method  # noqa: E402
 from estimator.observability import observability  # noqa: E402
 from estimator.problem import CalibrationInputError, RobotPoseNoise, build_problem  # noqa: E402
 from estimator.synthetic import SyntheticNoise  # noqa: E402
+from experiments.calibration import check_json_path, write_json  # noqa: E402
 from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene  # noqa: E402
 
 EXACT_POSES = RobotPoseNoise(0.0, 0.0)
@@ -137,7 +138,9 @@ def acceptance(summaries: dict) -> list[tuple[str, bool]]:
         for method, limit in (("batch", 1.1), ("ekf", 1.25), ("iekf", 1.25)):
             r = rows[method]
             worst = max(r["ratio_translation"], r["ratio_rotation"])
-            checks.append((f"{case}: {method} RMS <= {limit} x CRB (worst {worst:.2f})", worst <= limit))
+            checks.append(
+                (f"{case}: {method} RMS <= {limit} x CRB (worst {worst:.2f})", bool(worst <= limit))
+            )
         for method in MODEL_METHODS:
             nees = rows[method]["mean_nees"]
             checks.append(
@@ -216,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="write the summaries to this file")
     parser.add_argument("--plot", help="write a PNG: error / bound per method, ekf NEES histogram")
     args = parser.parse_args(argv)
+    if args.json:
+        check_json_path(Path(args.json))
     summaries = {}
     with ProcessPoolExecutor(args.workers) as pool:
         for case in CASES:
@@ -237,8 +242,7 @@ def main(argv: list[str] | None = None) -> int:
         plot(summaries, ekf_nees, args.plot)
         print(f"plot: {args.plot}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"summaries": summaries, "acceptance": checks, "time_s": times}, f, indent=2)
+        write_json(Path(args.json), {"summaries": summaries, "acceptance": checks, "time_s": times})
     return 0 if all(ok for _, ok in checks) else 1
 
 

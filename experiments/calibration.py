@@ -430,7 +430,12 @@ def result_to_dict(result: Result, T_true: np.ndarray | None = None) -> dict:
 
 
 def _finite(value: object) -> object:
-    """value with every NaN or infinite float replaced by None (JSON has neither)."""
+    """value with numpy scalars and arrays as Python ones, and every NaN or infinite float
+    replaced by None (JSON has neither)."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, float):
         return value if np.isfinite(value) else None
     if isinstance(value, dict):
