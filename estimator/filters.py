@@ -17,7 +17,8 @@ tolerance). The state is then moved to the estimate (estimator.lie convention).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
@@ -196,25 +197,49 @@ def _backtrack(cost: Callable[[np.ndarray], float], a: np.ndarray, a_next: np.nd
     return a
 
 
+@dataclass
+class FilterStep:
+    """The filter after one update: the last frame it took in, the state and its covariance
+    (dim, dim), the iterations this update ran and the (frame, marker_id) pairs it rejected."""
+
+    frame: int
+    state: HandEyeState
+    covariance: np.ndarray
+    iterations: int
+    rejected: set[tuple[int, int]]
+
+
+def filter_steps(
+    problem: CalibrationProblem, options: MethodOptions, iterated: bool, start: Start | None = None
+) -> Iterator[FilterStep]:
+    """ekf (iterated=False) or iekf over the frames in order, one step per update. The first
+    update takes the frames the closed form came from together: before they are all in, the mount
+    is not determined and a step would follow unconstrained directions. A prior fused after the
+    frames (see prior_first) comes as a last step with frame -1."""
+    start = start or initial_state(problem, options)
+    state = start.state
+    P = initial_covariance(state, options)
+    if prior_first(options, start):
+        state, P = apply_prior(state, P, options.prior)
+    max_iterations = IEKF_MAX_ITERATIONS if iterated else 1
+    first = max(start.frames_used, 1)
+    for frames in [problem.frames[:first]] + [[f] for f in problem.frames[first:]]:
+        state, P, used, rejected = update(problem, state, P, frames, max_iterations, options.robust)
+        yield FilterStep(frames[-1].frame, state, P, used, rejected)
+    if options.prior is not None and not prior_first(options, start):
+        state, P = apply_prior(state, P, options.prior)
+        yield FilterStep(-1, state, P, 0, set())
+
+
 def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bool) -> Calibration:
     """ekf (iterated=False) or iekf over all frames in order."""
     start = time.perf_counter()
     start_point = initial_state(problem, options)
-    state, source = start_point.state, start_point.source
-    P = initial_covariance(state, options)
-    if prior_first(options, start_point):
-        state, P = apply_prior(state, P, options.prior)
     iterations, rejected = 0, set()
-    max_iterations = IEKF_MAX_ITERATIONS if iterated else 1
-    # The first update takes the frames the closed form came from together: before they are all
-    # in, the mount is not determined and a step would follow unconstrained directions.
-    first = max(start_point.frames_used, 1)
-    for frames in [problem.frames[:first]] + [[f] for f in problem.frames[first:]]:
-        state, P, used, failed = update(problem, state, P, frames, max_iterations, options.robust)
-        iterations += used
-        rejected |= failed
-    if options.prior is not None and not prior_first(options, start_point):
-        state, P = apply_prior(state, P, options.prior)
+    for step in filter_steps(problem, options, iterated, start_point):
+        iterations += step.iterations
+        rejected |= step.rejected
+    state, P = step.state, step.covariance
     elapsed = time.perf_counter() - start
     return Calibration(
         method="iekf" if iterated else "ekf",
@@ -230,7 +255,7 @@ def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bo
         diagnostics={
             "iterations": iterations,
             "time_s": elapsed,
-            "initialisation": source,
+            "initialisation": start_point.source,
             "state_covariance": P,
         },
     )
