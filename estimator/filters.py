@@ -88,7 +88,8 @@ def apply_prior(state: HandEyeState, P: np.ndarray, prior: Prior) -> tuple[HandE
     return state.plus(a), 0.5 * (P_post + P_post.T)
 
 
-def _marker_rows(frame: FrameMeasurements) -> list[slice]:
+def marker_rows(frame: FrameMeasurements) -> list[slice]:
+    """The rows of each marker of a frame in its stacked whitened residual."""
     rows, start = [], 0
     for m in frame.markers:
         rows.append(slice(start, start + m.whitening.shape[0]))
@@ -103,7 +104,7 @@ def gate_markers(
     and the marker IDs that fail it. H: (m, n_a) Jacobian of the whitened prediction."""
     keep = np.ones(len(residual), dtype=bool)
     failed = []
-    for m, rows in zip(frame.markers, _marker_rows(frame), strict=True):
+    for m, rows in zip(frame.markers, marker_rows(frame), strict=True):
         Hk = H[rows]
         S = Hk @ P_a @ Hk.T + np.eye(len(Hk))
         nis = float(residual[rows] @ np.linalg.solve(S, residual[rows]))

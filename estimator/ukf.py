@@ -60,7 +60,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2
 
 from estimator.calibration import Calibration, MethodOptions, landmarks_by_marker, marker_residuals
-from estimator.filters import GATE_PROBABILITY, _marker_rows, apply_prior, initial_covariance, prior_first
+from estimator.filters import GATE_PROBABILITY, marker_rows, apply_prior, initial_covariance, prior_first
 from estimator.initialise import initial_state
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import CalibrationProblem, FrameMeasurements
@@ -105,7 +105,7 @@ def gate(frame: FrameMeasurements, innovation: np.ndarray, S: np.ndarray) -> tup
     gate, and the IDs of those that fail it. innovation: (m,); S: (m, m) its covariance."""
     keep = np.ones(len(innovation), dtype=bool)
     failed = []
-    for m, rows in zip(frame.markers, _marker_rows(frame), strict=True):
+    for m, rows in zip(frame.markers, marker_rows(frame), strict=True):
         nis = float(innovation[rows] @ np.linalg.solve(S[rows, rows], innovation[rows]))
         if nis > chi2.ppf(GATE_PROBABILITY, rows.stop - rows.start):
             keep[rows] = False
