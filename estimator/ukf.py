@@ -60,7 +60,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2
 
 from estimator.calibration import Calibration, MethodOptions, landmarks_by_marker, marker_residuals
-from estimator.filters import GATE_PROBABILITY, marker_rows, apply_prior, initial_covariance, prior_first
+from estimator.filters import GATE_PROBABILITY, apply_prior, initial_covariance, marker_rows, prior_first
 from estimator.initialise import initial_state
 from estimator.measurement_model import HandEyeState, predict_frame
 from estimator.problem import CalibrationProblem, FrameMeasurements
