@@ -13,6 +13,7 @@ from estimator.dataset import DatasetError
 from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
 from estimator.observations import ObservationCacheError
 from estimator.problem import CalibrationInputError
+from experiments import regress
 
 USER_ERRORS = (
     BoardDefinitionError,
@@ -185,6 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     _add_detect(sub)
     _add_calibrate(sub)
     _add_board(sub)
+    regress.add_parser(sub)
     args = parser.parse_args(argv)
     try:
         if args.command == "board":
@@ -202,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "calibrate":
             return _run_calibrate(args)
+        if args.command == "regress":
+            return regress.run(args)
         from sim.scenario import ScenarioError, load_scenario
         from sim.simulate import SimulationError, simulate
         from sim.trajectory import WaypointFileError
