@@ -7,7 +7,6 @@ table (format_comparison) are separate functions so reports can reuse them.
 from __future__ import annotations
 
 import json
-import os
 import sys
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, replace
@@ -31,6 +30,7 @@ from estimator.problem import (
     dataset_robot_noise,
 )
 from experiments.detection import cached_or_detected
+from experiments.files import write_atomic
 
 ALL_METHODS = "all"
 TRANSFORM_MEANING = (
@@ -457,13 +457,7 @@ def write_json(path: Path, data: dict) -> Path:
     """Write data to path through a temporary sibling and a rename: never half-written.
     NaN and infinite numbers are written as null."""
     check_json_path(path)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return write_atomic(path, json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")
 
 
 # ---------------------------------------------------------------- the command

@@ -13,7 +13,7 @@ from estimator.dataset import DatasetError
 from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
 from estimator.observations import ObservationCacheError
 from estimator.problem import CalibrationInputError
-from experiments import regress
+from experiments import regress, report, sweep
 
 USER_ERRORS = (
     BoardDefinitionError,
@@ -186,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     _add_detect(sub)
     _add_calibrate(sub)
     _add_board(sub)
+    sweep.add_parser(sub)
+    report.add_parser(sub)
     regress.add_parser(sub)
     args = parser.parse_args(argv)
     try:
@@ -204,8 +206,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "calibrate":
             return _run_calibrate(args)
-        if args.command == "regress":
-            return regress.run(args)
+        if args.command in ("sweep", "report", "regress"):
+            return {"sweep": sweep, "report": report, "regress": regress}[args.command].run(args)
         from sim.scenario import ScenarioError, load_scenario
         from sim.simulate import SimulationError, simulate
         from sim.trajectory import WaypointFileError

@@ -97,6 +97,17 @@ def cached_or_detected(dataset: Dataset, quiet: bool = False) -> tuple[list[Fram
     return observations, f"detected now, cached in {cache}"
 
 
+def overlay_writer(dataset: Dataset) -> Callable[[FrameObservations, Frame | None], None]:
+    """A detect_and_cache on_frame that draws each frame's overlay into DATASET/overlay/."""
+    overlay_dir = dataset.root / OVERLAY_DIR
+    overlay_dir.mkdir(exist_ok=True)
+
+    def write_overlay(obs: FrameObservations, frame: Frame | None) -> None:
+        _write_overlay(overlay_dir, obs, frame, dataset.intrinsics)
+
+    return write_overlay
+
+
 def run_detect(
     dataset_path: Path, overlay: bool = False, passes: tuple[str, ...] = DEFAULT_PASSES, quiet: bool = False
 ) -> list[FrameObservations]:
@@ -104,14 +115,10 @@ def run_detect(
     dataset = load_dataset(dataset_path)
     settings = DetectorSettings(passes=passes)
     overlay_dir = dataset.root / OVERLAY_DIR
-    if overlay:
-        overlay_dir.mkdir(exist_ok=True)
     start = time.perf_counter()
-
-    def write_overlay(obs: FrameObservations, frame: Frame | None) -> None:
-        _write_overlay(overlay_dir, obs, frame, dataset.intrinsics)
-
-    observations, cache = detect_and_cache(dataset, settings, quiet, write_overlay if overlay else None)
+    observations, cache = detect_and_cache(
+        dataset, settings, quiet, overlay_writer(dataset) if overlay else None
+    )
     elapsed = time.perf_counter() - start
     board_ids = dataset.board.marker_ids
     print("frame found   missing corner_sd depth_sd  passes           notes")
