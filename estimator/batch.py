@@ -23,8 +23,8 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from estimator.calibration import Calibration, MethodOptions, Prior, landmarks_by_marker, marker_residuals
-from estimator.filters import GATE_PROBABILITY, initial_covariance
+from estimator.calibration import Calibration, MethodOptions, Prior, calibration_from_state
+from estimator.filters import GATE_PROBABILITY, initial_covariance, marker_rows
 from estimator.initialise import initial_state
 from estimator.lie import pose_plus_jacobian
 from estimator.measurement_model import HandEyeState, predict_frame
@@ -126,23 +126,17 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     to_local = start.plus_jacobian(solution.x[: objective.n])
     cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
     rejected = _outliers(problem, objective.frame_residuals(solution.x)) if options.robust else set()
-    return Calibration(
-        method="batch",
-        T_flange_cam=state.T_flange_cam,
-        covariance=0.5 * (cov[:6, :6] + cov[:6, :6].T),
-        T_base_board=state.T_base_board,
-        landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
-        residuals=marker_residuals(problem, state, rejected),
-        observations_used=problem.observation_count - len(rejected),
-        observations_rejected=len(rejected),
-        depth_scale=state.depth_scale,
-        depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(cov[-1, -1])),
-        diagnostics={
+    return calibration_from_state(
+        "batch",
+        problem,
+        state,
+        0.5 * (cov + cov.T),
+        rejected,
+        {
             "iterations": int(solution.nfev),
             "time_s": time.perf_counter() - start_time,
             "initialisation": source,
             "optimizer": solution.message,
-            "state_covariance": cov,
         },
     )
 
@@ -152,10 +146,7 @@ def _outliers(problem: CalibrationProblem, residuals: list[np.ndarray]) -> set[t
     the Huber loss down-weighted them."""
     out = set()
     for frame, residual in zip(problem.frames, residuals, strict=True):
-        start = 0
-        for m in frame.markers:
-            rows = m.whitening.shape[0]
-            if np.sum(residual[start : start + rows] ** 2) > chi2.ppf(GATE_PROBABILITY, rows):
+        for m, rows in zip(frame.markers, marker_rows(frame), strict=True):
+            if np.sum(residual[rows] ** 2) > chi2.ppf(GATE_PROBABILITY, rows.stop - rows.start):
                 out.add((frame.frame, m.marker_id))
-            start += rows
     return out

@@ -162,3 +162,29 @@ def landmarks_by_marker(problem: CalibrationProblem, state: HandEyeState) -> dic
     return {
         i: transform_points(state.T_base_board, problem.board.marker_corners(i)) for i in problem.marker_ids
     }
+
+
+def calibration_from_state(
+    method: str,
+    problem: CalibrationProblem,
+    state: HandEyeState,
+    covariance: np.ndarray,
+    rejected: set[tuple[int, int]],
+    diagnostics: dict,
+) -> Calibration:
+    """The Calibration of a method that estimates a HandEyeState: covariance (dim, dim) of the state
+    perturbation (its [:6, :6] is T_flange_cam's), rejected (frame, marker_id) pairs, and the method's
+    diagnostics (the state covariance is added as 'state_covariance')."""
+    return Calibration(
+        method=method,
+        T_flange_cam=state.T_flange_cam,
+        covariance=covariance[:6, :6],
+        T_base_board=state.T_base_board,
+        landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
+        residuals=marker_residuals(problem, state, rejected),
+        observations_used=problem.observation_count - len(rejected),
+        observations_rejected=len(rejected),
+        depth_scale=state.depth_scale,
+        depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(covariance[-1, -1])),
+        diagnostics={**diagnostics, "state_covariance": covariance},
+    )

@@ -29,8 +29,7 @@ from estimator.calibration import (
     Calibration,
     MethodOptions,
     Prior,
-    landmarks_by_marker,
-    marker_residuals,
+    calibration_from_state,
 )
 from estimator.initialise import Start, initial_state
 from estimator.lie import pose_plus_jacobian
@@ -240,23 +239,15 @@ def run_filter(problem: CalibrationProblem, options: MethodOptions, iterated: bo
     for step in filter_steps(problem, options, iterated, start_point):
         iterations += step.iterations
         rejected |= step.rejected
-    state, P = step.state, step.covariance
-    elapsed = time.perf_counter() - start
-    return Calibration(
-        method="iekf" if iterated else "ekf",
-        T_flange_cam=state.T_flange_cam,
-        covariance=P[:6, :6],
-        T_base_board=state.T_base_board,
-        landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
-        residuals=marker_residuals(problem, state, rejected),
-        observations_used=problem.observation_count - len(rejected),
-        observations_rejected=len(rejected),
-        depth_scale=state.depth_scale,
-        depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(P[-1, -1])),
-        diagnostics={
+    return calibration_from_state(
+        "iekf" if iterated else "ekf",
+        problem,
+        step.state,
+        step.covariance,
+        rejected,
+        {
             "iterations": iterations,
-            "time_s": elapsed,
+            "time_s": time.perf_counter() - start,
             "initialisation": start_point.source,
-            "state_covariance": P,
         },
     )

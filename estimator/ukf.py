@@ -59,7 +59,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2
 
-from estimator.calibration import Calibration, MethodOptions, landmarks_by_marker, marker_residuals
+from estimator.calibration import Calibration, MethodOptions, calibration_from_state
 from estimator.filters import GATE_PROBABILITY, apply_prior, initial_covariance, marker_rows, prior_first
 from estimator.initialise import initial_state
 from estimator.measurement_model import HandEyeState, predict_frame
@@ -153,21 +153,11 @@ def ukf(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     if options.prior is not None and not prior_first(options, start_point):
         state, P = apply_prior(state, P, options.prior)
     elapsed = time.perf_counter() - start
-    return Calibration(
-        method="ukf",
-        T_flange_cam=state.T_flange_cam,
-        covariance=P[:6, :6],
-        T_base_board=state.T_base_board,
-        landmarks_base=landmarks_by_marker(problem, state) if state.landmarks_base is not None else None,
-        residuals=marker_residuals(problem, state, rejected),
-        observations_used=problem.observation_count - len(rejected),
-        observations_rejected=len(rejected),
-        depth_scale=state.depth_scale,
-        depth_scale_sigma=None if state.depth_scale is None else float(np.sqrt(P[-1, -1])),
-        diagnostics={
-            "iterations": len(problem.frames),
-            "time_s": elapsed,
-            "initialisation": source,
-            "state_covariance": P,
-        },
+    return calibration_from_state(
+        "ukf",
+        problem,
+        state,
+        P,
+        rejected,
+        {"iterations": len(problem.frames), "time_s": elapsed, "initialisation": source},
     )

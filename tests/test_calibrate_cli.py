@@ -23,6 +23,7 @@ from estimator.observations import CACHE_FILE, load_observations, save_observati
 from estimator.problem import CalibrationInputError
 from experiments.calibration import write_json
 from experiments.cli import main
+from tests.hec_cli import run_hec
 
 JSON_KEYS = {
     "method",
@@ -50,14 +51,6 @@ JSON_KEYS = {
 }
 
 
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    """main(argv) with stdout and stderr captured."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
-
-
 @pytest.fixture(scope="module")
 def dataset(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the default dataset without a detections cache."""
@@ -71,7 +64,7 @@ def dataset(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> 
 def first_run(dataset: Path) -> tuple[int, str, str, Path]:
     """`hec calibrate DATASET --json OUT` on the copy: detects, caches, calibrates with ekf."""
     out = dataset.parent / "ekf.json"
-    return (*_run(["calibrate", str(dataset), "--json", str(out), "--quiet"]), out)
+    return (*run_hec(["calibrate", str(dataset), "--json", str(out), "--quiet"]), out)
 
 
 def test_first_run_detects_and_caches_then_reuses_the_cache(dataset: Path, first_run) -> None:
@@ -79,7 +72,7 @@ def test_first_run_detects_and_caches_then_reuses_the_cache(dataset: Path, first
     assert code == 0, stderr
     assert "no detections cache" in stderr
     assert (dataset / CACHE_FILE).is_file()
-    code, stdout, stderr = _run(["calibrate", str(dataset), "--quiet"])
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet"])
     assert code == 0, stderr
     assert f"observations from {dataset / CACHE_FILE}" in stdout
     assert "detecting" not in stderr
@@ -142,7 +135,9 @@ def test_method_all_prints_a_row_per_method_and_a_failure_row(
 
     monkeypatch.setitem(METHODS, "opencv-tsai", broken)
     out = tmp_path / "all.json"
-    code, stdout, stderr = _run(["calibrate", str(dataset), "--method", "all", "--json", str(out), "--quiet"])
+    code, stdout, stderr = run_hec(
+        ["calibrate", str(dataset), "--method", "all", "--json", str(out), "--quiet"]
+    )
     assert code == 0, stderr
     lines = stdout.splitlines()
     header = next(i for i, line in enumerate(lines) if line.startswith("method "))
@@ -161,7 +156,7 @@ def test_method_all_prints_a_row_per_method_and_a_failure_row(
 
 
 def test_a_previous_json_output_is_a_prior(first_run, dataset: Path) -> None:
-    code, stdout, stderr = _run(["calibrate", str(dataset), "--prior", str(first_run[3]), "--quiet"])
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--prior", str(first_run[3]), "--quiet"])
     assert code == 0, stderr
     assert "vs ground truth" in stdout
 
@@ -186,7 +181,7 @@ def test_a_bad_prior_file_exits_2_naming_the_file_and_field(
     prior = tmp_path / "prior.json"
     if content is not None:
         prior.write_text(content)
-    code, stdout, stderr = _run(["calibrate", str(dataset), "--prior", str(prior), "--quiet"])
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--prior", str(prior), "--quiet"])
     assert code == 2
     assert stderr.startswith(f"hec: error: {prior}: ") and words in stderr, stderr
     assert len(stderr.strip().splitlines()) == 1 and stdout == ""
@@ -200,19 +195,19 @@ def test_too_few_frames_is_a_clear_error(dataset: Path, tmp_path: Path) -> None:
         o if o.frame < 2 else replace(o, markers=[], problem="left out by the test") for o in observations
     ]
     save_observations(copy, kept, settings, depth_noise)
-    code, stdout, stderr = _run(["calibrate", str(copy), "--quiet"])
+    code, stdout, stderr = run_hec(["calibrate", str(copy), "--quiet"])
     assert code == 2
     assert "hec: error: too few frames: 2 usable of 17, need at least 3" in stderr, stderr
 
 
 def test_no_depth_reaches_methods_that_read_depth_from_the_observations(dataset: Path) -> None:
-    code, _, stderr = _run(["calibrate", str(dataset), "--no-depth", "--method", "seed-ekf", "--quiet"])
+    code, _, stderr = run_hec(["calibrate", str(dataset), "--no-depth", "--method", "seed-ekf", "--quiet"])
     assert code == 2 and "markers with depth" in stderr
 
 
 def test_robot_noise_options_override_the_dataset(dataset: Path) -> None:
     argv = ["calibrate", str(dataset), "--robot-sigma-mm", "0.5", "--robot-sigma-deg", "0.05", "--quiet"]
-    code, stdout, stderr = _run(argv)
+    code, stdout, stderr = run_hec(argv)
     assert code == 0, stderr
     assert "robot pose noise 0.500 mm, 0.0500 deg (command line)" in stdout
     err = io.StringIO()

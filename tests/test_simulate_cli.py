@@ -6,9 +6,7 @@ Runs render short waypoint files (2-4 views taken from the default trajectory) t
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 import re
 import shutil
@@ -27,6 +25,7 @@ from sim.scenario import Scenario, load_scenario
 from sim.scene import models_dir
 from sim.simulate import scenario_waypoints, simulate
 from sim.trajectory import Waypoint, WaypointFileError, read_waypoint_file, write_waypoint_file
+from tests.hec_cli import run_hec
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "models" / "scenarios"
@@ -73,14 +72,6 @@ def _reported_poses(root: Path) -> list[np.ndarray]:
         ]
 
 
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    """main(argv) with stdout and stderr captured (for module-scoped fixtures)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Three runs of [good, unreachable, good, good]: seed 0 twice (scenario seed), seed 1 once."""
@@ -91,7 +82,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
         out = tmp / name
         result[name] = (
             out,
-            *_run(["simulate", "--out", str(out), "--scenario", str(scenario), "--quiet", *extra]),
+            *run_hec(["simulate", "--out", str(out), "--scenario", str(scenario), "--quiet", *extra]),
         )
     return result
 
