@@ -62,8 +62,11 @@ def run_trial(case: str, seed: int, trial: int) -> dict:
     rng = np.random.default_rng([seed, trial])
     X = random_mount(rng)
     observations = scene(X, rng, noise=noise)
-    problem = build_problem(observations, BOARD, INTRINSICS, model_robot or noise.robot)
     truth_problem = build_problem(observations, BOARD, INTRINSICS, noise.robot)
+    # The bound is that of the true noise; the methods see the model's (the same unless it ignores some).
+    problem = (
+        truth_problem if model_robot is None else build_problem(observations, BOARD, INTRINSICS, model_robot)
+    )
     crb = observability(truth_problem, HandEyeState(X, T_base_board=T_BASE_BOARD)).crb_covariance
     out = {"crb": np.diag(crb), "methods": {}}
     for method in methods:
