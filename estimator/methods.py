@@ -8,14 +8,12 @@ import numpy as np
 
 from estimator.baselines import OPENCV_METHODS, opencv_calibrate
 from estimator.batch import batch
-from estimator.board import BoardDefinition
 from estimator.calibration import Calibration, MethodOptions
-from estimator.camera import CameraIntrinsics
 from estimator.filters import run_filter
 from estimator.measurement_model import HandEyeState
 from estimator.observability import observability
 from estimator.observations import FrameObservations
-from estimator.problem import CalibrationProblem, RobotPoseNoise, build_problem
+from estimator.problem import CalibrationProblem
 from estimator.seed_ekf import seed_ekf
 from estimator.ukf import ukf
 
@@ -51,17 +49,3 @@ def run_method(
     result.diagnostics["observability"] = report
     result.warnings.extend(w for w in report.warnings if w not in result.warnings)
     return result
-
-
-def calibrate(
-    observations: list[FrameObservations],
-    board: BoardDefinition,
-    intrinsics: CameraIntrinsics,
-    method: str = DEFAULT_METHOD,
-    options: MethodOptions | None = None,
-    robot_noise: RobotPoseNoise | None = None,
-    use_depth: bool = True,
-) -> Calibration:
-    """Observations to a Calibration with one method (see METHODS)."""
-    problem = build_problem(observations, board, intrinsics, robot_noise, use_depth)
-    return run_method(method, problem, options or MethodOptions(), observations)

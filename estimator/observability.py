@@ -38,7 +38,6 @@ class Observability:
     crb_covariance: np.ndarray | None
     crb_sigma_translation_mm: np.ndarray
     crb_sigma_rotation_deg: np.ndarray
-    direction_sigmas: list[tuple[str, float]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     observable: bool = True
 
@@ -98,7 +97,6 @@ def observability(problem: CalibrationProblem, state: HandEyeState) -> Observabi
         part = v[:3] if is_translation else v[3:]
         what = _describe(part / np.linalg.norm(part), state.T_flange_cam[:3, :3], is_translation)
         unit = "mm" if is_translation else "degrees"
-        result.direction_sigmas.append((what, float(sigma)))
         if sigma > (UNOBSERVABLE_SIGMA_MM if is_translation else UNOBSERVABLE_SIGMA_DEG):
             result.observable = False
             result.warnings.append(f"{what} is not observable from these views: {_ADVICE}")
