@@ -20,7 +20,7 @@ from sim.kinematics import forward, solve_ik
 from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
 from sim.render import RGBDRenderer
 from sim.scenario import Scenario
-from sim.scene import CAMERA_NAME, build_cell
+from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
 from sim.trajectory import Waypoint
 
 # Fixed IK restarts tried when the current configuration does not lead to a valid solution.
@@ -56,9 +56,12 @@ class FrameTruth:
 
 
 class SimCell:
-    """A MuJoCo cell built from a scenario. Noise comes from ``rng``."""
+    """A MuJoCo cell built from a scenario. Noise comes from ``rng``. ``depth_sensor``
+    adds a separate depth imager beside the colour camera (see render_depth_sensor)."""
 
-    def __init__(self, scenario: Scenario, rng: np.random.Generator) -> None:
+    def __init__(
+        self, scenario: Scenario, rng: np.random.Generator, depth_sensor: DepthSensor | None = None
+    ) -> None:
         self.scenario = scenario
         self.rng = rng
         self.intrinsics = scenario.camera.intrinsics()
@@ -69,7 +72,10 @@ class SimCell:
             self.intrinsics,
             self.board,
             scenario.board.transform(),
+            depth_sensor=depth_sensor,
         )
+        self.depth_sensor = depth_sensor
+        self._depth_renderer: RGBDRenderer | None = None
         self.model = self.cell.model
         self.data = mujoco.MjData(self.model)
         self._qpos = self.cell.joint_qpos_addresses()
@@ -78,7 +84,7 @@ class SimCell:
         self._board_geom = self.cell.board_geom_id()
         self.joints = np.array(_IK_SEEDS[0])
         self.time_s = 0.0
-        self._set_joints(self.joints)
+        self.set_joints(self.joints)
 
     @property
     def renderer(self) -> RGBDRenderer:
@@ -87,9 +93,10 @@ class SimCell:
         return self._renderer
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        for renderer in (self._renderer, self._depth_renderer):
+            if renderer is not None:
+                renderer.close()
+        self._renderer = self._depth_renderer = None
 
     # --- the cell interface -------------------------------------------------------------
 
@@ -102,12 +109,12 @@ class SimCell:
         previous = self.joints
         problem = "out of reach: IK found no solution within the joint limits"
         for q in self._ik_candidates(waypoint):
-            self._set_joints(q)
+            self.set_joints(q)
             problem = self._collision() or self.markers_visible_problem()
             if problem is None:
                 self.time_s += float(np.max(np.abs(q - previous))) / JOINT_SPEED_RAD_S + SETTLE_S
                 return
-        self._set_joints(previous)
+        self.set_joints(previous)
         raise WaypointRejected(problem)
 
     def flange_pose(self) -> np.ndarray:
@@ -139,6 +146,16 @@ class SimCell:
     def render_true(self) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free rgb (H, W, 3) uint8 and depth (H, W) float32 metres from the camera."""
         return self.renderer.render(self.data, CAMERA_NAME)
+
+    def render_depth_sensor(self) -> np.ndarray:
+        """Noise-free depth (H, W) float32 metres along the depth sensor's optical axis, in
+        its own image (depth_sensor.intrinsics)."""
+        if self.depth_sensor is None:
+            raise ValueError("this cell was built without a depth sensor")
+        if self._depth_renderer is None:
+            k = self.depth_sensor.intrinsics
+            self._depth_renderer = RGBDRenderer(self.model, k.width, k.height)
+        return self._depth_renderer.render(self.data, DEPTH_SENSOR_NAME)[1]
 
     def markers_visible_problem(self) -> str | None:
         """None if every marker corner is in the image with the margin, faces the camera
@@ -205,7 +222,9 @@ class SimCell:
         geom = self.model.geom(geom_id)
         return geom.name or self.model.body(geom.bodyid[0]).name
 
-    def _set_joints(self, q: np.ndarray) -> None:
+    def set_joints(self, q: np.ndarray) -> None:
+        """Put the arm at joint angles q (6,), radians, without any check (the loopback
+        RTDE controller in tests drives the arm this way)."""
         self.joints = np.array(q, dtype=float)
         self.data.qpos[self._qpos] = self.joints
         mujoco.mj_forward(self.model, self.data)

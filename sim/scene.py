@@ -27,6 +27,7 @@ from sim.kinematics import ROBOTS, URKinematics
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 CAMERA_NAME = "hec_camera"
+DEPTH_SENSOR_NAME = "hec_depth_sensor"
 BOARD_GEOM = "board_sheet"
 ARM_PREFIX = "arm/"
 # Rotation taking OpenCV's camera axes to MuJoCo's (x right, y up, looking along -z).
@@ -53,6 +54,15 @@ def find_board(name: str, base_dir: Path = Path(".")) -> BoardDefinition:
     """A board named in models/boards/ (without .json), else a JSON path relative to base_dir."""
     named = models_dir() / "boards" / f"{name}.json"
     return load_board(named if named.is_file() else base_dir / name)
+
+
+@dataclass(frozen=True)
+class DepthSensor:
+    """A depth imager beside the colour camera: its pose T_cam_depth (4, 4) in the colour
+    camera's optical frame, metres, and its own pinhole intrinsics."""
+
+    T_cam_depth: np.ndarray
+    intrinsics: CameraIntrinsics
 
 
 @dataclass
@@ -93,12 +103,15 @@ def build_cell(
     board: BoardDefinition,
     T_base_board: np.ndarray,
     offscreen_size: tuple[int, int] = (1280, 960),
+    depth_sensor: DepthSensor | None = None,
 ) -> CellModel:
     """Compile the cell for one scenario.
 
     robot: 'ur5' or 'ur5e'. T_flange_cam: (4, 4) camera mount (OpenCV optical
     frame). T_base_board: (4, 4) pose of the board frame in the base frame.
     offscreen_size: largest (width, height) rendered, at least the camera's.
+    depth_sensor: an optional second camera, rigidly beside the colour camera,
+    named DEPTH_SENSOR_NAME (an RGB-D camera whose depth imager is not the colour one).
     """
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; choose one of {sorted(ROBOTS)}")
@@ -106,10 +119,15 @@ def build_cell(
     spec = mujoco.MjSpec.from_file(str(root / "cell.xml"))
     arm = mujoco.MjSpec.from_file(str(root / f"{robot}.xml"))
     spec.attach(arm, site=spec.site("arm_mount"), prefix=ARM_PREFIX)
-    spec.visual.global_.offwidth = max(offscreen_size[0], intrinsics.width)
-    spec.visual.global_.offheight = max(offscreen_size[1], intrinsics.height)
+    views = [intrinsics] + ([depth_sensor.intrinsics] if depth_sensor is not None else [])
+    spec.visual.global_.offwidth = max(offscreen_size[0], *(k.width for k in views))
+    spec.visual.global_.offheight = max(offscreen_size[1], *(k.height for k in views))
 
     _add_camera(spec.body(ARM_PREFIX + "flange"), T_flange_cam, intrinsics)
+    if depth_sensor is not None:
+        _add_view(
+            spec.body("camera_body"), DEPTH_SENSOR_NAME, depth_sensor.T_cam_depth, depth_sensor.intrinsics
+        )
     T_world_base = _site_pose(spec, "arm_mount")
     _add_board(spec, board, T_world_base @ T_base_board)
     model = spec.compile()
@@ -153,8 +171,13 @@ def _add_camera(flange: mujoco.MjsBody, T_flange_cam: np.ndarray, k: CameraIntri
             contype=0,
             conaffinity=0,
         )
-    camera = body.add_camera(name=CAMERA_NAME)
-    _set_pose(camera, make_transform(R_CAM_MJCAM, np.zeros(3)))
+    _add_view(body, CAMERA_NAME, np.eye(4), k)
+
+
+def _add_view(body: mujoco.MjsBody, name: str, T_body_cam: np.ndarray, k: CameraIntrinsics) -> None:
+    """A MuJoCo camera at T_body_cam (OpenCV optical frame) with the pinhole intrinsics k."""
+    camera = body.add_camera(name=name)
+    _set_pose(camera, T_body_cam @ make_transform(R_CAM_MJCAM, np.zeros(3)))
     camera.resolution = [k.width, k.height]
     camera.focal_pixel = [k.fx, k.fy]
     camera.principal_pixel = [(k.width - 1) / 2 - k.cx, (k.height - 1) / 2 - k.cy]
