@@ -9,8 +9,7 @@ import cv2
 import numpy as np
 
 from estimator.camera import CameraIntrinsics
-
-MAX_BURST = 255  # the per-pixel sample count is kept as uint8
+from estimator.geometry import invert
 
 
 class DepthResampler:
@@ -28,7 +27,7 @@ class DepthResampler:
     def __init__(self, colour: CameraIntrinsics, depth: CameraIntrinsics, T_colour_depth: np.ndarray) -> None:
         self.axis = DepthAlongColourAxis(colour, T_colour_depth)
         self.depth_intrinsics = depth
-        T_depth_colour = np.linalg.inv(T_colour_depth)
+        T_depth_colour = invert(T_colour_depth)
         self._R, self._t = T_depth_colour[:3, :3], T_depth_colour[:3, 3]
         self._rays = self.axis.rays.reshape(-1, 3)
 
@@ -71,9 +70,8 @@ class DepthAlongColourAxis:
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, T_colour_depth: np.ndarray) -> None:
-        R_colour_depth, t_colour_depth = T_colour_depth[:3, :3], T_colour_depth[:3, 3]
-        R_depth_colour = R_colour_depth.T
-        t_depth_colour = -R_depth_colour @ t_colour_depth
+        T_depth_colour = invert(T_colour_depth)
+        R_depth_colour, t_depth_colour = T_depth_colour[:3, :3], T_depth_colour[:3, 3]
         u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
         pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
         rays = cv2.undistortPoints(
@@ -104,15 +102,11 @@ class DepthAverage:
         """depth_m: (H, W) metres, 0 = no depth."""
         if depth_m.shape != self._sum.shape:
             raise ValueError(f"depth image {depth_m.shape} does not match the burst's {self._sum.shape}")
-        if self._count.max(initial=0) >= MAX_BURST:
-            raise ValueError(f"a burst holds at most {MAX_BURST} images")
         valid = depth_m > 0.0
         self._sum[valid] += depth_m[valid]
         self._count += valid
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """(mean depth (H, W) float32 metres, 0 where no sample was valid; valid sample
-        count per pixel (H, W) uint8)."""
+    def mean(self) -> np.ndarray:
+        """Mean depth (H, W) float32 metres, 0 where no sample was valid."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.where(self._count > 0, self._sum / self._count, 0.0)
-        return mean.astype(np.float32), self._count.astype(np.uint8)
+            return np.where(self._count > 0, self._sum / self._count, 0.0).astype(np.float32)

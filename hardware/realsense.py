@@ -6,13 +6,15 @@ the stream profile and the depth scale from the depth sensor.
 
 A capture averages the depth of a burst of frames per pixel over its valid samples
 *before* alignment, puts the mean into a librealsense depth frame and aligns that
-once. ``rs.align`` writes the nearest of the depth pixels that land on a colour
-pixel (adjacent depth pixels share colour pixels), which biases noisy depth toward
-the camera: aligning each noisy frame and averaging measured -0.4..-0.8 mm on a
-D435-like stream at 0.45 m; aligning the mean shrinks that with the burst's noise.
-Finer depth units (0.1 mm by default, where the camera lets us set them) keep the
-mean's precision. The images it returns feed the same detector and estimators as
-the simulator's.
+once; the valid-sample count per colour pixel comes from aligning each frame.
+``rs.align`` writes the nearest of the depth pixels that land on a colour pixel
+(adjacent depth pixels share colour pixels) and keeps the depth imager's axis:
+aligning each noisy frame and averaging measured -0.4..-0.8 mm on a D435-like
+stream at 0.45 m. So the aligned mean is only the starting point: the depth is
+re-sampled where each colour pixel's point projects into the depth image and put
+on the colour axis (hardware.depth_burst.DepthResampler). Finer depth units (0.1 mm
+by default, where the camera lets us set them) keep the mean's precision. The
+images it returns feed the same detector and estimators as the simulator's.
 """
 
 from __future__ import annotations
@@ -25,8 +27,9 @@ import numpy as np
 import pyrealsense2 as rs
 
 from estimator.camera import CameraIntrinsics
-from hardware.depth_burst import MAX_BURST, DepthAverage, DepthResampler
+from hardware.depth_burst import DepthAverage, DepthResampler
 
+MAX_BURST = 255  # the per-pixel sample count is kept as uint8
 FILTERS = ("spatial", "temporal", "hole_filling")
 # Timestamp domains on the host's clock (a D435 reports global_time by default).
 _HOST_CLOCK_DOMAINS = (rs.timestamp_domain.global_time, rs.timestamp_domain.system_time)
@@ -278,7 +281,7 @@ class RealSenseCamera:
                 depth_mean = DepthAverage((depth.get_height(), depth.get_width()))
             depth_mean.add(np.asarray(depth.get_data(), dtype=np.float64) * depth.get_units())
             samples += self._align.process(frameset).get_depth_frame().as_depth_frame().get_data() != 0
-        mean_m, _ = depth_mean.result()
+        mean_m = depth_mean.mean()
         rgb, aligned_m = self._aligned(self._with_depth(frameset, mean_m))
         depth_m = self._resampler.resample(aligned_m, mean_m)
         self.captures += 1

@@ -77,7 +77,7 @@ def test_a_read_only_robot_reads_but_cannot_move(cell_and_controller) -> None:
 
 
 def test_refuses_targets_outside_the_limits_before_moving(cell_and_controller) -> None:
-    cell, lock, controller = cell_and_controller
+    cell, lock, _ = cell_and_controller
     box = SafetyLimits(workspace_lower_m=(-0.2, -0.2, -0.2), workspace_upper_m=(0.2, 0.2, 0.2))
     with _robot(cell, limits=box) as robot:
         with pytest.raises(RobotError, match="refused to move: flange position .* outside the workspace box"):
