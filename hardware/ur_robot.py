@@ -28,6 +28,9 @@ _SAFETY_STOPS = {
     8: "safety violation: see the teach pendant's log",
     9: "safety fault: see the teach pendant's log",
 }
+# Longest wait for a command's effect (a stop, a new TCP offset) to reach the receive
+# stream, which lags the command channel (125-500 Hz packages).
+_CAUSE_WAIT_S = 0.5
 _NOT_CONNECTED = "check the network cable, the robot's IP address and that the controller is on"
 
 
@@ -153,10 +156,22 @@ class URRobot:
         return problem
 
     def set_tcp_offset(self, T_flange_tcp: np.ndarray) -> None:
-        """Set the controller's TCP offset (4, 4), the TCP in the flange frame."""
+        """Set the controller's TCP offset (4, 4), the TCP in the flange frame, with the arm
+        still. Returns once the reported TCP pose shows it: the receive stream lags the
+        command, and a flange pose from the new offset and an old TCP pose is wrong by the
+        offset's change."""
+        T_flange_tcp = np.asarray(T_flange_tcp, dtype=float)
+        T_base_flange = self.flange_pose()
         if not self._controller().setTcp(ur_pose_from_transform(T_flange_tcp)):
             raise RobotError("the controller refused the TCP offset")
-        self.T_flange_tcp = np.asarray(T_flange_tcp, dtype=float)
+        expected = T_base_flange @ T_flange_tcp
+        deadline = time.monotonic() + _CAUSE_WAIT_S
+        # 1e-5 (m, or rotation-matrix entries): above a still arm's encoder jitter.
+        while np.max(np.abs(self.tcp_pose() - expected)) > 1e-5:
+            if time.monotonic() > deadline:
+                raise RobotError("the reported TCP pose did not take the new TCP offset; is the arm moving?")
+            time.sleep(0.005)
+        self.T_flange_tcp = T_flange_tcp
 
     def move_joints(self, q: np.ndarray) -> None:
         """moveJ to q (6,) radians with the configured limits; returns when settled."""
@@ -235,8 +250,16 @@ class URRobot:
         return self._control
 
     def _after_move(self, ok: bool, command: str) -> None:
-        self._check_connected()
-        self._check_safety()
+        """Raise with the cause when the move failed, else wait until settled. The receive
+        stream can lag the command channel, so a failed move is given _CAUSE_WAIT_S for a
+        stop or a lost connection to show up before it is reported without a cause."""
+        deadline = time.monotonic() + (0.0 if ok else _CAUSE_WAIT_S)
+        while True:
+            self._check_connected()
+            self._check_safety()
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(0.01)
         if not ok:
             raise RobotError(f"{command} failed: the controller stopped the program; see the teach pendant")
         self.wait_settled()
