@@ -11,17 +11,23 @@ folder a person can open without this project::
                         and (simulation) seed, scenario, skipped waypoints
     board.json          the board definition (hec-board v1)
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported
-                        T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad
+                        T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad;
+                        a recorded session adds waypoint (the waypoint's index) and
+                        depth_samples (its image, or empty)
     rgb/NNNNNN.png      colour, 8-bit RGB
     depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
+    depth_samples/NNNNNN.png  optional, 8-bit: valid depth samples averaged per pixel
     ground_truth.json   simulation only: T_flange_cam, T_base_board, T_world_base
                         and per frame the true T_base_flange and joints
     detections.json     optional cache written by `hec detect` (estimator.observations)
     overlay/NNNNNN.png  optional detection pictures written by `hec detect --overlay`
 
-Depth is aligned to the colour image and shares its intrinsics. A dataset
-is written into a temporary sibling folder and renamed into place when it is
-complete, so a failed run never leaves a folder that looks finished.
+Depth is aligned to the colour image and shares its intrinsics. A rendered
+dataset (DatasetWriter) is written into a temporary sibling folder and renamed
+into place when it is complete, so a failed run never leaves a folder that looks
+finished. A recorded session (DatasetRecorder) is written in place frame by
+frame, so an interruption keeps every frame captured before it; dataset.json
+'recording' says whether it is 'in progress', 'interrupted' or 'complete'.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import numpy as np
 
 from estimator.board import BoardDefinition, BoardDefinitionError, load_board
 from estimator.camera import CameraIntrinsics
+from estimator.files import write_atomic
 from estimator.geometry import transform_from_xyz_quat, xyz_quat_from_transform
 from estimator.jsonfile import read_json_object
 
@@ -58,6 +65,7 @@ FRAME_COLUMNS = (
     "qz",
     *(f"q{i}_rad" for i in range(1, 7)),
 )
+SESSION_COLUMNS = ("waypoint", "depth_samples")
 
 
 class DatasetError(ValueError):
@@ -137,22 +145,8 @@ class DatasetWriter:
 
     def add_frame(self, frame: Frame) -> int:
         """Write one frame's images now and keep its row; returns the frame number."""
-        k = self.intrinsics
-        if frame.rgb.shape != (k.height, k.width, 3) or frame.rgb.dtype != np.uint8:
-            raise DatasetError(
-                f"rgb must be ({k.height}, {k.width}, 3) uint8, got {frame.rgb.shape} {frame.rgb.dtype}"
-            )
-        if frame.depth_m.shape != (k.height, k.width):
-            raise DatasetError(f"depth must be ({k.height}, {k.width}), got {frame.depth_m.shape}")
         index = len(self.rows)
-        rgb_name, depth_name = f"rgb/{index:06d}.png", f"depth/{index:06d}.png"
-        _write_png(self.tmp_dir / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
-        _write_png(self.tmp_dir / depth_name, encode_depth(frame.depth_m, self.depth_scale_m))
-        t, q = xyz_quat_from_transform(frame.T_base_flange)
-        values = [*t, *q, *frame.joints]
-        self.rows.append(
-            [str(index), repr(float(frame.time_s)), rgb_name, depth_name, *(repr(float(v)) for v in values)]
-        )
+        self.rows.append(_write_frame_files(self.tmp_dir, index, frame, self.intrinsics, self.depth_scale_m))
         return index
 
     def finish(self, ground_truth: GroundTruth | None = None, extra: dict | None = None) -> Path:
@@ -163,35 +157,9 @@ class DatasetWriter:
             writer.writerows(self.rows)
         _dump_json(self.tmp_dir / "board.json", self.board.to_dict())
         if ground_truth is not None:
-            _dump_json(
-                self.tmp_dir / "ground_truth.json",
-                {
-                    "T_flange_cam": _matrix(ground_truth.T_flange_cam),
-                    "T_base_board": _matrix(ground_truth.T_base_board),
-                    "T_world_base": _matrix(ground_truth.T_world_base),
-                    "frames": [
-                        {"frame": i, "T_base_flange": _matrix(T), "joints_rad": [float(v) for v in q]}
-                        for i, (T, q) in enumerate(
-                            zip(ground_truth.T_base_flange, ground_truth.joints, strict=True)
-                        )
-                    ],
-                },
-            )
-        meta = {
-            "format": FORMAT,
-            "version": VERSION,
-            "source": self.source,
-            "frame_count": len(self.rows),
-            "camera": self.intrinsics.to_dict(),
-            "depth_scale_m": self.depth_scale_m,
-            "depth": "aligned to the colour image, along the optical axis; 0 = no depth",
-            "flange_pose": "reported T_base_flange: tool0 in the base frame; metres, quaternion w x y z",
-            "board_file": "board.json",
-            "frames_file": "frames.csv",
-            "ground_truth_file": "ground_truth.json" if ground_truth is not None else None,
-            **(extra or {}),
-        }
-        _dump_json(self.tmp_dir / "dataset.json", meta)
+            _dump_json(self.tmp_dir / "ground_truth.json", _ground_truth_dict(ground_truth))
+        meta = _metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
+        _dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
         if self.out_dir.exists():
             trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
             self.out_dir.rename(trash)
@@ -200,6 +168,179 @@ class DatasetWriter:
         else:
             self.tmp_dir.rename(self.out_dir)
         return self.out_dir
+
+
+class DatasetRecorder:
+    """Write a recorded session straight into ``out_dir``, frame by frame: images first,
+    then the frames.csv row (flushed to disk), then dataset.json with the new count, so an
+    interruption loses nothing captured before it. ``resume=True`` reopens such a folder
+    (same camera intrinsics, depth scale, board and source, or DatasetError) and appends.
+
+    extra: more dataset.json fields; ground_truth (simulation): the cell's truth, its
+    per-frame lists filled by add_frame.
+    """
+
+    def __init__(
+        self,
+        out_dir: str | Path,
+        intrinsics: CameraIntrinsics,
+        board: BoardDefinition,
+        depth_scale_m: float,
+        source: str,
+        extra: dict | None = None,
+        ground_truth: GroundTruth | None = None,
+        resume: bool = False,
+    ) -> None:
+        self.root = Path(out_dir)
+        self.intrinsics, self.board, self.depth_scale_m = intrinsics, board, depth_scale_m
+        self.source, self.extra = source, dict(extra or {})
+        self.ground_truth = ground_truth
+        self.rows: list[dict] = []
+        if resume:
+            self._reopen()
+        else:
+            self._create()
+
+    def _create(self) -> None:
+        if self.root.exists():
+            raise FileExistsError(
+                f"{self.root} already exists; add --resume to continue that session, or choose another --out"
+            )
+        for sub in ("rgb", "depth", "depth_samples"):
+            (self.root / sub).mkdir(parents=True)
+        _dump_json(self.root / "board.json", self.board.to_dict())
+        with open(self.root / "frames.csv", "w", newline="") as f:
+            csv.writer(f, lineterminator="\n").writerow((*FRAME_COLUMNS, *SESSION_COLUMNS))
+        self._write_metadata("in progress")
+
+    def _reopen(self) -> None:
+        """Check that the folder holds a session of this camera and board, drop a frames.csv
+        line cut short by the interruption, and read the frames recorded so far."""
+        meta_path = self.root / "dataset.json"
+        meta = read_json_object(meta_path, DatasetError, "missing: nothing to resume here")
+        checks = {
+            "camera": (meta.get("camera"), self.intrinsics.to_dict()),
+            "depth_scale_m": (meta.get("depth_scale_m"), self.depth_scale_m),
+            "source": (meta.get("source"), self.source),
+        }
+        for key, (recorded, now) in checks.items():
+            if recorded != now:
+                raise DatasetError(f"{meta_path}: cannot resume, '{key}' was {recorded!r} and is now {now!r}")
+        if load_board(self.root / "board.json").to_dict() != self.board.to_dict():
+            raise DatasetError(f"{self.root / 'board.json'}: cannot resume, the board is another one")
+        frames_path = self.root / "frames.csv"
+        text = frames_path.read_text()
+        if not text.endswith("\n"):
+            text = text[: text.rfind("\n") + 1]
+            frames_path.write_text(text)
+        with open(frames_path, newline="") as f:
+            header = next(csv.reader(f))
+        if tuple(header) != (*FRAME_COLUMNS, *SESSION_COLUMNS):
+            raise DatasetError(f"{frames_path}: not written by a recorded session; cannot resume it")
+        self.rows = _read_frames(frames_path)
+        if self.ground_truth is not None and self.rows:
+            truth = _read_ground_truth(self.root / "ground_truth.json")
+            self.ground_truth.T_base_flange[:] = truth.T_base_flange[: len(self.rows)]
+            self.ground_truth.joints[:] = truth.joints[: len(self.rows)]
+        self._write_metadata("in progress")
+
+    @property
+    def recorded_waypoints(self) -> set[int]:
+        return {row["waypoint"] for row in self.rows}
+
+    def add_frame(
+        self,
+        frame: Frame,
+        waypoint: int,
+        depth_samples: np.ndarray | None = None,
+        truth: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> int:
+        """Write one frame now; returns its number. depth_samples: (H, W) uint8 samples per
+        pixel or None; truth (simulation): the true T_base_flange (4, 4) and joints (6,)."""
+        index = len(self.rows)
+        row = _write_frame_files(self.root, index, frame, self.intrinsics, self.depth_scale_m)
+        samples_name = ""
+        if depth_samples is not None:
+            samples_name = f"depth_samples/{index:06d}.png"
+            _write_png(self.root / samples_name, np.asarray(depth_samples, dtype=np.uint8))
+        if self.ground_truth is not None and truth is not None:
+            self.ground_truth.T_base_flange.append(truth[0])
+            self.ground_truth.joints.append(truth[1])
+            write_atomic(self.root / "ground_truth.json", json.dumps(_ground_truth_dict(self.ground_truth)))
+        with open(self.root / "frames.csv", "a", newline="") as f:
+            csv.writer(f, lineterminator="\n").writerow([*row, str(waypoint), samples_name])
+            f.flush()
+            os.fsync(f.fileno())
+        self.rows.append({"frame": index, "waypoint": waypoint})
+        self._write_metadata("in progress")
+        return index
+
+    def finish(self, state: str, extra: dict | None = None) -> Path:
+        """Write dataset.json once more with the session's end state ('complete' or
+        'interrupted') and any more fields."""
+        self.extra |= extra or {}
+        self._write_metadata(state)
+        return self.root
+
+    def _write_metadata(self, state: str) -> None:
+        truth = self.ground_truth if self.rows else None  # its file is written with the first frame
+        meta = _metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
+        text = json.dumps(meta | self.extra | {"recording": state}, indent=2) + "\n"
+        write_atomic(self.root / "dataset.json", text)
+
+
+def _write_frame_files(
+    root: Path, index: int, frame: Frame, intrinsics: CameraIntrinsics, depth_scale_m: float
+) -> list[str]:
+    """Check the frame against the intrinsics, write its images under root and return its
+    frames.csv row (the FRAME_COLUMNS)."""
+    k = intrinsics
+    if frame.rgb.shape != (k.height, k.width, 3) or frame.rgb.dtype != np.uint8:
+        raise DatasetError(
+            f"rgb must be ({k.height}, {k.width}, 3) uint8, got {frame.rgb.shape} {frame.rgb.dtype}"
+        )
+    if frame.depth_m.shape != (k.height, k.width):
+        raise DatasetError(f"depth must be ({k.height}, {k.width}), got {frame.depth_m.shape}")
+    rgb_name, depth_name = f"rgb/{index:06d}.png", f"depth/{index:06d}.png"
+    _write_png(root / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
+    _write_png(root / depth_name, encode_depth(frame.depth_m, depth_scale_m))
+    t, q = xyz_quat_from_transform(frame.T_base_flange)
+    values = [*t, *q, *frame.joints]
+    return [str(index), repr(float(frame.time_s)), rgb_name, depth_name, *(repr(float(v)) for v in values)]
+
+
+def _ground_truth_dict(truth: GroundTruth) -> dict:
+    return {
+        "T_flange_cam": _matrix(truth.T_flange_cam),
+        "T_base_board": _matrix(truth.T_base_board),
+        "T_world_base": _matrix(truth.T_world_base),
+        "frames": [
+            {"frame": i, "T_base_flange": _matrix(T), "joints_rad": [float(v) for v in q]}
+            for i, (T, q) in enumerate(zip(truth.T_base_flange, truth.joints, strict=True))
+        ],
+    }
+
+
+def _metadata(
+    intrinsics: CameraIntrinsics,
+    depth_scale_m: float,
+    source: str,
+    frame_count: int,
+    ground_truth: GroundTruth | None,
+) -> dict:
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "source": source,
+        "frame_count": frame_count,
+        "camera": intrinsics.to_dict(),
+        "depth_scale_m": depth_scale_m,
+        "depth": "aligned to the colour image, along the optical axis; 0 = no depth",
+        "flange_pose": "reported T_base_flange: tool0 in the base frame; metres, quaternion w x y z",
+        "board_file": "board.json",
+        "frames_file": "frames.csv",
+        "ground_truth_file": "ground_truth.json" if ground_truth is not None else None,
+    }
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
@@ -297,18 +438,22 @@ def load_dataset(path: str | Path) -> Dataset:
         )
     truth = None
     if meta.get("ground_truth_file"):
-        gt = read_json_object(root / meta["ground_truth_file"], DatasetError)
-        try:
-            truth = GroundTruth(
-                np.array(gt["T_flange_cam"]),
-                np.array(gt["T_base_board"]),
-                np.array(gt["T_world_base"]),
-                [np.array(f["T_base_flange"]) for f in gt["frames"]],
-                [np.array(f["joints_rad"]) for f in gt["frames"]],
-            )
-        except (KeyError, TypeError) as exc:
-            raise DatasetError(f"{root / meta['ground_truth_file']}: missing field {exc}") from None
+        truth = _read_ground_truth(root / meta["ground_truth_file"])
     return Dataset(root, meta, intrinsics, board, depth_scale, rows, truth)
+
+
+def _read_ground_truth(path: Path) -> GroundTruth:
+    gt = read_json_object(path, DatasetError)
+    try:
+        return GroundTruth(
+            np.array(gt["T_flange_cam"]),
+            np.array(gt["T_base_board"]),
+            np.array(gt["T_world_base"]),
+            [np.array(f["T_base_flange"]) for f in gt["frames"]],
+            [np.array(f["joints_rad"]) for f in gt["frames"]],
+        )
+    except (KeyError, TypeError) as exc:
+        raise DatasetError(f"{path}: missing field {exc}") from None
 
 
 def _read_frames(path: Path) -> list[dict]:
@@ -331,6 +476,7 @@ def _read_frames(path: Path) -> list[dict]:
                         "depth": raw["depth"],
                         "T_base_flange": transform_from_xyz_quat(np.array(values[:3]), np.array(values[3:7])),
                         "joints": np.array(values[7:]),
+                        "waypoint": int(raw["waypoint"]) if raw.get("waypoint") else None,
                     }
                 )
             except (TypeError, ValueError) as exc:

@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from estimator.calibration import Calibration, MethodOptions, Prior
 from estimator.dataset import Dataset, load_dataset
+from estimator.files import write_atomic
 from estimator.geometry import pose_error, rpy_from_transform, xyz_quat_from_transform
 from estimator.jsonfile import read_json_object
 from estimator.lie import pose_minus, so3_log
@@ -30,7 +31,6 @@ from estimator.problem import (
     dataset_robot_noise,
 )
 from experiments.detection import cached_or_detected
-from experiments.files import write_atomic
 
 ALL_METHODS = "all"
 TRANSFORM_MEANING = (

@@ -32,10 +32,10 @@ from pathlib import Path
 import numpy as np
 
 from estimator.calibration import MethodOptions
+from estimator.files import write_atomic
 from estimator.jsonfile import read_json_object
 from estimator.lie import pose_minus
 from estimator.problem import CalibrationProblem
-from experiments.files import write_atomic
 from experiments.sweep import EXAMPLE_DIR, FLOAT_COLUMNS, ID_COLUMNS, META_FILE, RESULT_COLUMNS, ROWS_FILE
 
 REPORT_FILE = "report.html"

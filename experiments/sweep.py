@@ -59,12 +59,12 @@ from tqdm import tqdm
 
 from estimator.camera import project_points
 from estimator.dataset import load_dataset
+from estimator.files import write_atomic
 from estimator.geometry import invert, pose_error, rpy_from_transform, transform_points
 from estimator.jsonfile import read_json_object
 from estimator.lie import pose_minus
 from estimator.observations import camera_points
 from estimator.problem import CalibrationInputError, build_problem, dataset_robot_noise
-from experiments.files import write_atomic
 from experiments.sweep_config import (
     MEASUREMENTS,
     PARAMETERS,

@@ -199,6 +199,12 @@ class URRobot:
         if miss > self.motion.position_tolerance_m:
             raise RobotError(f"the arm stopped {1e3 * miss:.1f} mm short of the target; check for obstacles")
 
+    def teach_mode(self, on: bool) -> None:
+        """Let the arm be moved by hand (UR teach mode, freedrive) or end it."""
+        control = self._controller()
+        if not (control.teachMode() if on else control.endTeachMode()):
+            raise RobotError(f"the controller refused to {'start' if on else 'end'} teach mode")
+
     def wait_settled(self) -> None:
         """Return once every joint has been slower than settle_speed_rad_s for dwell_s."""
         m = self.motion

@@ -217,10 +217,16 @@ def scenario_from_dict(data: dict, source: str = "scenario", base_dir: Path = Pa
     try:
         return Scenario(**data, base_dir=str(base_dir))
     except ValidationError as exc:
-        problems = []
-        for err in exc.errors():
-            key = ".".join(str(part) for part in err["loc"]) or "(top level)"
-            message = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-            got = "" if err["type"] in ("extra_forbidden", "missing") else f" (got {err['input']!r})"
-            problems.append(f"{source}: key '{key}': {message}{got}")
-        raise ScenarioError("\n".join(problems)) from None
+        raise ScenarioError(validation_problems(exc, source)) from None
+
+
+def validation_problems(exc: ValidationError, source: str) -> str:
+    """One line per bad key of a TOML file read into a pydantic model: the file, the dotted
+    key, what is wrong and the value given."""
+    problems = []
+    for err in exc.errors():
+        key = ".".join(str(part) for part in err["loc"]) or "(top level)"
+        message = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        got = "" if err["type"] in ("extra_forbidden", "missing") else f" (got {err['input']!r})"
+        problems.append(f"{source}: key '{key}': {message}{got}")
+    return "\n".join(problems)
