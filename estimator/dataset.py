@@ -90,6 +90,18 @@ class Frame:
 
 
 @dataclass
+class Capture:
+    """One view as a cell returns it: the frame; depth_samples (H, W) uint8, the valid depth
+    samples averaged per pixel (a camera burst; None when not averaged); and, in simulation,
+    the true T_base_flange (4, 4) and joints (6,)."""
+
+    frame: Frame
+    depth_samples: np.ndarray | None = None
+    true_T_base_flange: np.ndarray | None = None
+    true_joints: np.ndarray | None = None
+
+
+@dataclass
 class GroundTruth:
     """Simulation truth: the mount, the board pose and per-frame true flange poses."""
 
@@ -248,24 +260,19 @@ class DatasetRecorder:
     def recorded_waypoints(self) -> set[int]:
         return {row["waypoint"] for row in self.rows}
 
-    def add_frame(
-        self,
-        frame: Frame,
-        waypoint: int,
-        depth_samples: np.ndarray | None = None,
-        truth: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> int:
-        """Write one frame now; returns its number. depth_samples: (H, W) uint8 samples per
-        pixel or None; truth (simulation): the true T_base_flange (4, 4) and joints (6,)."""
+    def add_frame(self, capture: Capture, waypoint: int) -> int:
+        """Write one captured view of waypoint (its index) now; returns its frame number."""
         index = len(self.rows)
-        row = _write_frame_files(self.root, index, frame, self.intrinsics, self.depth_scale_m)
+        row = _write_frame_files(self.root, index, capture.frame, self.intrinsics, self.depth_scale_m)
         samples_name = ""
-        if depth_samples is not None:
+        if capture.depth_samples is not None:
             samples_name = f"depth_samples/{index:06d}.png"
-            _write_png(self.root / samples_name, np.asarray(depth_samples, dtype=np.uint8))
-        if self.ground_truth is not None and truth is not None:
-            self.ground_truth.T_base_flange.append(truth[0])
-            self.ground_truth.joints.append(truth[1])
+            _write_png(self.root / samples_name, np.asarray(capture.depth_samples, dtype=np.uint8))
+        if self.ground_truth is not None:
+            if capture.true_T_base_flange is None or capture.true_joints is None:
+                raise DatasetError("a simulated session's capture must carry its true pose and joints")
+            self.ground_truth.T_base_flange.append(capture.true_T_base_flange)
+            self.ground_truth.joints.append(capture.true_joints)
             write_atomic(self.root / "ground_truth.json", json.dumps(_ground_truth_dict(self.ground_truth)))
         with open(self.root / "frames.csv", "a", newline="") as f:
             csv.writer(f, lineterminator="\n").writerow([*row, str(waypoint), samples_name])

@@ -13,7 +13,7 @@ from estimator.dataset import DatasetError
 from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
 from estimator.observations import ObservationCacheError
 from estimator.problem import CalibrationInputError
-from experiments import regress, report, sweep
+from experiments import record, regress, report, sweep
 
 USER_ERRORS = (
     BoardDefinitionError,
@@ -189,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     sweep.add_parser(sub)
     report.add_parser(sub)
     regress.add_parser(sub)
+    record.add_parsers(sub)
     args = parser.parse_args(argv)
     try:
         if args.command == "board":
@@ -206,6 +207,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "calibrate":
             return _run_calibrate(args)
+        if args.command in ("record", "run"):
+            return record.run(args)
         if args.command in ("sweep", "report", "regress"):
             return {"sweep": sweep, "report": report, "regress": regress}[args.command].run(args)
         from sim.scenario import ScenarioError, load_scenario

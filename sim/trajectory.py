@@ -73,6 +73,16 @@ class Waypoint:
     joints: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class PlannedMove:
+    """A waypoint with the joint target (6,), radians, that reaches it from the previous
+    move, or why it cannot be used (then joints is None)."""
+
+    waypoint: Waypoint
+    joints: np.ndarray | None
+    problem: str | None = None
+
+
 # Head-on camera orientation over the board: image x along board x, looking down board -z.
 _R_BOARD_CAM_HEAD_ON = np.diag([1.0, -1.0, -1.0])
 

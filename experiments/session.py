@@ -1,0 +1,194 @@
+"""The calibration session, the same for the simulated and the real cell: for each planned
+waypoint move, settle, capture, read the pose, write the frame, and (optionally) detect it
+and re-run the EKF over every frame so far to show the running estimate and its sigma.
+
+A cell (SessionCell) is sim.cell.SimCell through SimulatedCell below, or
+hardware.cell.HardwareCell.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from estimator.calibration import Calibration, MethodOptions
+from estimator.dataset import Capture, DatasetRecorder, Frame, load_dataset
+from estimator.detect import DetectorSettings, QRDetector
+from estimator.methods import DEFAULT_METHOD, run_method
+from estimator.observations import (
+    FrameObservations,
+    dataset_depth_noise,
+    observe_dataset,
+    observe_frame,
+    save_observations,
+)
+from estimator.problem import CalibrationInputError, build_problem, dataset_robot_noise
+from hardware.realsense import CameraError
+from hardware.ur_robot import RobotError
+from sim.cell import SimCell, WaypointRejected
+from sim.trajectory import PlannedMove, Waypoint
+
+# What stops a session (the frames recorded before stay): the arm, the camera, or Ctrl-C.
+SESSION_STOPS = (RobotError, CameraError, KeyboardInterrupt)
+
+
+class SessionCell(Protocol):
+    source: str
+    depth_scale_m: float
+
+    def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]: ...
+    def move_to(self, move: PlannedMove) -> None: ...
+    def capture(self) -> Capture: ...
+    def describe(self) -> dict: ...
+    def close(self) -> None: ...
+
+
+class SimulatedCell:
+    """A SimCell behind the session interface. Planning moves the simulated arm through the
+    waypoints and back without drawing noise, so a session draws the same noise as
+    `hec simulate` with the same seed."""
+
+    source = "sim"
+
+    def __init__(self, cell: SimCell) -> None:
+        self.cell = cell
+        self.intrinsics = cell.intrinsics
+        self.board = cell.board
+        self.depth_scale_m = cell.scenario.noise.depth_quantisation.depth_scale_m
+
+    def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]:
+        start_joints, start_time = self.cell.joints.copy(), self.cell.time_s
+        moves = []
+        try:
+            for waypoint in waypoints:
+                try:
+                    self.cell.move_to(waypoint)
+                    moves.append(PlannedMove(waypoint, self.cell.joints.copy()))
+                except WaypointRejected as rejected:
+                    moves.append(PlannedMove(waypoint, None, rejected.reason))
+        finally:
+            self.cell.set_joints(start_joints)
+            self.cell.time_s = start_time
+        return moves
+
+    def move_to(self, move: PlannedMove) -> None:
+        """Raises WaypointRejected when the planned joints cannot be used from here."""
+        self.cell.move_to(Waypoint(move.waypoint.index, move.waypoint.label, joints=move.joints))
+
+    def capture(self) -> Capture:
+        frame, truth = self.cell.capture()
+        return Capture(frame, true_T_base_flange=truth.T_base_flange, true_joints=truth.joints)
+
+    def describe(self) -> dict:
+        return {}
+
+    def close(self) -> None:
+        self.cell.close()
+
+
+class LiveEstimate:
+    """Detects each new frame of a recording and runs the EKF over every frame so far, with
+    the dataset's depth and robot noise, so the running estimate is what `hec calibrate`
+    would give for the frames recorded up to now."""
+
+    def __init__(self, root: Path, method: str = DEFAULT_METHOD) -> None:
+        dataset = load_dataset(root)
+        self.board, self.intrinsics = dataset.board, dataset.intrinsics
+        self.depth_noise = dataset_depth_noise(dataset)
+        self.robot_noise = dataset_robot_noise(dataset)
+        self.settings = DetectorSettings()
+        self.detector = QRDetector(dataset.board, self.settings)
+        self.method = method
+        self.observations: list[FrameObservations] = observe_dataset(dataset, self.settings, self.depth_noise)
+
+    def add(self, index: int, frame: Frame) -> str:
+        """Detect frame number index; returns a line: markers found and the running estimate."""
+        obs = observe_frame(index, frame, self.detector, self.depth_noise)
+        self.observations.append(obs)
+        found = f"{len(obs.markers)}/{len(self.board.marker_ids)} markers"
+        if obs.problem:
+            found += f" ({obs.problem})"
+        return f"{found} | {self.method}: {self._estimate_line()}"
+
+    def estimate(self) -> Calibration:
+        """The method's result over every frame so far. Raises CalibrationInputError (too few
+        usable frames) and the method's own errors."""
+        problem = build_problem(self.observations, self.board, self.intrinsics, self.robot_noise)
+        return run_method(self.method, problem, MethodOptions(), self.observations)
+
+    def _estimate_line(self) -> str:
+        try:
+            cal = self.estimate()
+        except (CalibrationInputError, ValueError, np.linalg.LinAlgError) as exc:
+            return f"not yet ({exc})"
+        t = 1e3 * cal.T_flange_cam[:3, 3]
+        line = "t [" + " ".join(f"{v:+.2f}" for v in t) + "] mm"
+        if cal.sigma_translation_mm is not None:
+            line += " +- [" + " ".join(f"{v:.2f}" for v in cal.sigma_translation_mm) + "] mm"
+            line += ", rotation +- [" + " ".join(f"{v:.3f}" for v in cal.sigma_rotation_deg) + "] deg"
+        return line
+
+    def save(self, root: Path) -> Path:
+        """Write the observations as the dataset's detections.json (after its last change)."""
+        return save_observations(root, self.observations, self.settings, self.depth_noise)
+
+
+@dataclass
+class SessionOutcome:
+    """recorded: frames written by this run; total: frames in the dataset; skipped: (waypoint
+    index, reason); stopped: why the session ended early, None when every waypoint was visited."""
+
+    root: Path
+    recorded: int = 0
+    total: int = 0
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    stopped: str | None = None
+
+
+def run_session(
+    cell: SessionCell,
+    moves: list[PlannedMove],
+    recorder: DatasetRecorder,
+    live: LiveEstimate | None = None,
+    say: Callable[[str], None] = print,
+) -> SessionOutcome:
+    """Visit every planned move not yet recorded (a resumed session skips those), writing
+    each frame as it is captured. A stop of the arm or camera, or Ctrl-C, ends the session
+    with the frames so far kept and dataset.json marked 'interrupted'."""
+    outcome = SessionOutcome(recorder.root)
+    done = recorder.recorded_waypoints
+    todo = [m for m in moves if m.waypoint.index not in done]
+    if done:
+        say(f"resuming: {len(recorder.rows)} frames recorded before, {len(todo)} waypoints to go")
+    try:
+        for n, move in enumerate(todo, start=1):
+            w = move.waypoint
+            head = f"[{n}/{len(todo)}] waypoint {w.index} ({w.label})"
+            try:
+                if move.problem is not None:
+                    raise WaypointRejected(move.problem)
+                cell.move_to(move)
+            except WaypointRejected as rejected:
+                outcome.skipped.append((w.index, rejected.reason))
+                say(f"{head}: skipped, {rejected.reason}")
+                continue
+            capture = cell.capture()
+            index = recorder.add_frame(capture, w.index)
+            outcome.recorded += 1
+            say(f"{head}: frame {index}" + (f" | {live.add(index, capture.frame)}" if live else ""))
+    except SESSION_STOPS as exc:
+        outcome.stopped = str(exc) if not isinstance(exc, KeyboardInterrupt) else "stopped by Ctrl-C"
+    outcome.total = len(recorder.rows)
+    session = {
+        "waypoints": len(moves),
+        "skipped_waypoints": [{"index": i, "reason": r} for i, r in outcome.skipped],
+        "stopped": outcome.stopped,
+    }
+    recorder.finish("interrupted" if outcome.stopped else "complete", {"session": session})
+    if live is not None:
+        live.save(recorder.root)
+    return outcome

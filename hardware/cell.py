@@ -1,0 +1,122 @@
+"""The real cell: a UR arm and a RealSense camera behind the interface of the simulated cell
+(plan, move_to, capture), so one calibration session drives either."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+
+import numpy as np
+
+from estimator.board import BoardDefinition
+from estimator.dataset import Capture, Frame
+from hardware.realsense import RealSenseCamera
+from hardware.ur_robot import RobotError, URRobot
+from sim.trajectory import PlannedMove, Waypoint
+
+# Largest joint change (rad) between the reads before and after a capture: more means the
+# arm moved while the camera was exposing, and the pose would not belong to the images.
+STILL_DURING_CAPTURE_RAD = 1e-4
+POSE_FRAMES = ("flange", "tcp")
+
+
+def plan_moves(
+    robot: URRobot,
+    inverse: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
+    waypoints: list[Waypoint],
+) -> list[PlannedMove]:
+    """Joint targets from the arm's current joints on (pose waypoints through inverse,
+    seeded with the previous target), each checked against the joint limits and the
+    workspace box; a waypoint that fails is skipped and the next starts from the one before."""
+    q = robot.joints()
+    moves = []
+    for waypoint in waypoints:
+        target = waypoint.joints if waypoint.joints is not None else inverse(waypoint.T_base_flange, q)
+        if target is None:
+            moves.append(
+                PlannedMove(waypoint, None, "no inverse kinematics solution within the joint limits")
+            )
+            continue
+        target = np.asarray(target, dtype=float)
+        problem = robot.check_joint_target(target)
+        if problem is not None:
+            moves.append(PlannedMove(waypoint, None, problem))
+            continue
+        moves.append(PlannedMove(waypoint, target))
+        q = target
+    return moves
+
+
+class HardwareCell:
+    """robot and camera, opened by the caller (closed by close()).
+
+    inverse: (T_base_flange (4, 4), seed joints (6,)) -> joints (6,) or None, the arm's
+    nominal inverse kinematics for waypoints given as poses. pose_frame: 'flange' records
+    T_base_flange (tool0), 'tcp' the controller's TCP pose (the result is then the camera
+    in the TCP frame).
+    """
+
+    source = "ur-realsense"
+
+    def __init__(
+        self,
+        robot: URRobot,
+        camera: RealSenseCamera,
+        board: BoardDefinition,
+        inverse: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
+        pose_frame: str = "flange",
+    ) -> None:
+        if pose_frame not in POSE_FRAMES:
+            raise ValueError(f"pose_frame must be one of {POSE_FRAMES}, got {pose_frame!r}")
+        self.robot, self.camera, self.board = robot, camera, board
+        self.inverse = inverse
+        self.pose_frame = pose_frame
+        self.intrinsics = camera.intrinsics
+        self.depth_scale_m = camera.depth_scale_m
+
+    def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]:
+        return plan_moves(self.robot, self.inverse, waypoints)
+
+    def move_to(self, move: PlannedMove) -> None:
+        """moveJ to the planned joints; returns once the arm has settled. Raises RobotError."""
+        if move.joints is None:
+            raise ValueError(f"waypoint {move.waypoint.index} has no joint target: {move.problem}")
+        self.robot.move_joints(move.joints)
+
+    def pose(self) -> np.ndarray:
+        """The reported T_base_flange (or T_base_tcp with pose_frame 'tcp'), (4, 4)."""
+        return self.robot.tcp_pose() if self.pose_frame == "tcp" else self.robot.flange_pose()
+
+    def capture(self) -> Capture:
+        """The pose and joints, then a camera burst taken after that moment; the joints are
+        read again after the burst to be sure the arm stood still throughout."""
+        q_before = self.robot.joints()
+        T_base_pose = self.pose()
+        taken = self.camera.capture(not_before_s=time.time())
+        moved = float(np.max(np.abs(self.robot.joints() - q_before)))
+        if moved > STILL_DURING_CAPTURE_RAD:
+            raise RobotError(
+                f"the arm moved {moved:.5f} rad during the capture; is someone guiding it or is "
+                "the settle dwell too short?"
+            )
+        frame = Frame(taken.rgb, taken.depth_m, self.intrinsics, T_base_pose, q_before, taken.time_s)
+        return Capture(frame, depth_samples=taken.depth_samples)
+
+    def describe(self) -> dict:
+        """What dataset.json records about the cell."""
+        r = self.robot
+        return {
+            "robot": {
+                "host": r.host,
+                "pose_frame": self.pose_frame,
+                "T_flange_tcp": [[float(v) for v in row] for row in r.T_flange_tcp],
+                "motion": asdict(r.motion),
+                "limits": asdict(r.limits),
+            },
+            "camera": self.camera.describe(),
+        }
+
+    def close(self) -> None:
+        self.camera.close()
+        self.robot.close()
