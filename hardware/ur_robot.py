@@ -54,8 +54,9 @@ def ur_pose_from_transform(T: np.ndarray) -> list[float]:
 @dataclass(frozen=True)
 class MotionSettings:
     """Speed and acceleration limits (joint moves: rad/s, rad/s^2; linear moves: m/s, m/s^2),
-    the settle rule (every joint slower than settle_speed_rad_s for dwell_s), and how
-    close a finished move must be to its target (rad per joint, metres)."""
+    the settle rule (every joint slower than settle_speed_rad_s for dwell_s), the longest
+    a move may take, and how close a finished move must be to its target (rad per joint,
+    metres)."""
 
     joint_speed: float = 0.5
     joint_acceleration: float = 0.8
@@ -64,6 +65,7 @@ class MotionSettings:
     settle_speed_rad_s: float = 1e-3
     dwell_s: float = 0.5
     settle_timeout_s: float = 10.0
+    move_timeout_s: float = 60.0
     joint_tolerance_rad: float = 1e-3
     position_tolerance_m: float = 1e-3
 
@@ -179,8 +181,10 @@ class URRobot:
         problem = self.check_joint_target(q)
         if problem:
             raise RobotError(f"refused to move: {problem}")
-        ok = self._controller().moveJ(q.tolist(), self.motion.joint_speed, self.motion.joint_acceleration)
-        self._after_move(ok, "moveJ")
+        m = self.motion
+        self._run_move(
+            "moveJ", lambda control: control.moveJ(q.tolist(), m.joint_speed, m.joint_acceleration, True)
+        )
         reached = np.max(np.abs(self.joints() - q))
         if reached > self.motion.joint_tolerance_rad:
             raise RobotError(
@@ -193,8 +197,10 @@ class URRobot:
         if problem:
             raise RobotError(f"refused to move: {problem}")
         target_tcp = ur_pose_from_transform(T_base_flange @ self.T_flange_tcp)
-        ok = self._controller().moveL(target_tcp, self.motion.linear_speed, self.motion.linear_acceleration)
-        self._after_move(ok, "moveL")
+        m = self.motion
+        self._run_move(
+            "moveL", lambda control: control.moveL(target_tcp, m.linear_speed, m.linear_acceleration, True)
+        )
         miss = np.linalg.norm(self.flange_pose()[:3, 3] - T_base_flange[:3, 3])
         if miss > self.motion.position_tolerance_m:
             raise RobotError(f"the arm stopped {1e3 * miss:.1f} mm short of the target; check for obstacles")
@@ -255,18 +261,35 @@ class URRobot:
             self.T_flange_tcp = transform_from_ur_pose(np.array(self._control.getTCPOffset()))
         return self._control
 
-    def _after_move(self, ok: bool, command: str) -> None:
-        """Raise with the cause when the move failed, else wait until settled. The receive
-        stream can lag the command channel, so a failed move is given _CAUSE_WAIT_S for a
-        stop or a lost connection to show up before it is reported without a cause."""
-        deadline = time.monotonic() + (0.0 if ok else _CAUSE_WAIT_S)
-        while True:
+    def _run_move(self, command: str, send: Callable[[object], bool]) -> None:
+        """Send an asynchronous move, watch it to its end, then wait until settled.
+
+        A blocking ur_rtde move never returns when the connection drops during the move
+        (measured against the loopback controller), so the move is asynchronous and this
+        loop checks the connection, the safety mode and the program every 10 ms. A failed
+        move is given _CAUSE_WAIT_S for a stop or a lost connection to reach the receive
+        stream (it lags the command channel) before it is reported without a cause.
+        """
+        control = self._controller()
+        failed = not send(control)
+        deadline = time.monotonic() + self.motion.move_timeout_s
+        while not failed:
             self._check_connected()
             self._check_safety()
-            if time.monotonic() >= deadline:
+            if control.getAsyncOperationProgress() < 0:
                 break
+            if not control.isProgramRunning():
+                failed = True
+            elif time.monotonic() > deadline:
+                control.stopJ(self.motion.joint_acceleration)
+                raise RobotError(f"{command} did not finish within {self.motion.move_timeout_s:g} s")
             time.sleep(0.01)
-        if not ok:
+        if failed:
+            cause_deadline = time.monotonic() + _CAUSE_WAIT_S
+            while time.monotonic() < cause_deadline:
+                self._check_connected()
+                self._check_safety()
+                time.sleep(0.01)
             raise RobotError(f"{command} failed: the controller stopped the program; see the teach pendant")
         self.wait_settled()
 
