@@ -178,7 +178,7 @@ def _demo_detect_and_calibrate(dataset: Path) -> None:
     calibrate_dataset(dataset, CalibrateSettings(method="ekf"), quiet=True, observations=observations)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hec", description="Eye-in-hand calibration testbench and tool.")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_demo(sub)
@@ -190,7 +190,11 @@ def main(argv: list[str] | None = None) -> int:
     report.add_parser(sub)
     regress.add_parser(sub)
     record.add_parsers(sub)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         if args.command == "board":
             from experiments.printable import save_printable_board

@@ -22,7 +22,7 @@ from estimator.dataset import DatasetRecorder, GroundTruth
 from estimator.methods import DEFAULT_METHOD, METHODS
 from experiments.cell_config import CellConfig, CellConfigError, load_cell_config
 from experiments.session import LiveEstimate, SessionCell, SimulatedCell, run_session
-from sim.kinematics import ROBOTS, forward, solve_ik
+from sim.kinematics import ROBOTS, forward, solve_ik_nearest
 from sim.trajectory import PlannedMove, Waypoint, WaypointFileError, read_waypoint_file
 
 EXIT_STOPPED = 3
@@ -116,12 +116,7 @@ def _open_robot(args: argparse.Namespace, config: CellConfig) -> object:
 
 def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None]:
     kinematics = ROBOTS[model]
-
-    def inverse(T_base_flange: np.ndarray, q_seed: np.ndarray) -> np.ndarray | None:
-        result = solve_ik(kinematics, T_base_flange, q_seed)
-        return result.q if result.converged else None
-
-    return inverse
+    return lambda T_base_flange, q_seed: solve_ik_nearest(kinematics, T_base_flange, q_seed)
 
 
 # ---------------------------------------------------------------- the plan

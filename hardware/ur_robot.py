@@ -271,6 +271,7 @@ class URRobot:
         stream (it lags the command channel) before it is reported without a cause.
         """
         control = self._controller()
+        self._check_connected()  # a command sent to a lost controller waits 300 s for its answer
         failed = not send(control)
         deadline = time.monotonic() + self.motion.move_timeout_s
         while not failed:

@@ -16,24 +16,13 @@ import numpy as np
 from estimator.camera import project_points
 from estimator.dataset import Frame
 from estimator.geometry import invert
-from sim.kinematics import forward, solve_ik
+from sim.kinematics import IK_RESTARTS, forward, solve_ik
 from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
 from sim.render import RGBDRenderer
 from sim.scenario import Scenario
 from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
 from sim.trajectory import Waypoint
 
-# Fixed IK restarts tried when the current configuration does not lead to a valid solution.
-_IK_SEEDS = np.array(
-    [
-        [-2.4, -2.25, 1.95, 0.3, -2.4, 0.0],
-        [-0.8, -0.9, -1.95, -0.3, 2.4, 0.0],
-        [-1.57, -1.57, 1.57, -1.57, -1.57, 0.0],
-        [1.57, -1.57, 1.57, 0.0, 1.57, 0.0],
-        [0.0, -1.0, 2.0, -1.0, -1.57, 0.0],
-        [-3.14, -2.0, 1.0, 1.0, -1.57, 0.0],
-    ]
-)
 # Simulated timing: joint speed while moving and the settle time at each waypoint.
 JOINT_SPEED_RAD_S = 0.5
 SETTLE_S = 1.0
@@ -82,7 +71,7 @@ class SimCell:
         self._renderer: RGBDRenderer | None = None
         self._camera_body = self.model.body("camera_body").id
         self._board_geom = self.cell.board_geom_id()
-        self.joints = np.array(_IK_SEEDS[0])
+        self.joints = np.array(IK_RESTARTS[0])
         self.time_s = 0.0
         self.set_joints(self.joints)
 
@@ -248,7 +237,7 @@ class SimCell:
             tried.append(first.q)
             yield first.q
         solutions = [first.q] if first.converged else []
-        for seed in _IK_SEEDS:
+        for seed in IK_RESTARTS:
             result = solve_ik(kin, waypoint.T_base_flange, seed)
             if result.converged and not any(np.allclose(result.q, q, atol=1e-6) for q in solutions):
                 solutions.append(result.q)

@@ -142,3 +142,28 @@ def solve_ik(
     pos_err, rot_err = float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r))
     converged = pos_err < 1e-8 and rot_err < 1e-8
     return IKResult(q, converged, pos_err, rot_err, iteration)
+
+
+# Fixed IK restarts, tried when the current joints do not lead to a solution.
+IK_RESTARTS = np.array(
+    [
+        [-2.4, -2.25, 1.95, 0.3, -2.4, 0.0],
+        [-0.8, -0.9, -1.95, -0.3, 2.4, 0.0],
+        [-1.57, -1.57, 1.57, -1.57, -1.57, 0.0],
+        [1.57, -1.57, 1.57, 0.0, 1.57, 0.0],
+        [0.0, -1.0, 2.0, -1.0, -1.57, 0.0],
+        [-3.14, -2.0, 1.0, 1.0, -1.57, 0.0],
+    ]
+)
+
+
+def solve_ik_nearest(kin: URKinematics, T_base_flange: np.ndarray, q_seed: np.ndarray) -> np.ndarray | None:
+    """Joints (6,) reaching T_base_flange: from q_seed if that converges, else the solution from
+    IK_RESTARTS that moves the joints least from q_seed; None when none converges."""
+    first = solve_ik(kin, T_base_flange, q_seed)
+    if first.converged:
+        return first.q
+    solutions = [r.q for r in (solve_ik(kin, T_base_flange, seed) for seed in IK_RESTARTS) if r.converged]
+    if not solutions:
+        return None
+    return min(solutions, key=lambda q: float(np.max(np.abs(q - q_seed))))

@@ -1,0 +1,215 @@
+"""`hec record` / `hec run`: the session on the simulated cell, and on the real-cell code path
+against the loopback UR controller and the RealSense software device sharing one simulated cell."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimator.dataset import load_dataset
+from estimator.geometry import pose_error, xyz_quat_from_transform
+from experiments import record
+from experiments.calibration import CalibrateSettings, calibrate_dataset
+from experiments.cli import build_parser, main
+from sim.cell import SimCell
+from sim.scenario import Scenario, load_scenario
+from sim.simulate import scenario_waypoints, simulate
+from tests.conftest import TEST_SEED
+from tests.realsense_software import SERIAL, SoftwareD435, d435_depth_sensor, d435_scenario
+from tests.rtde_loopback import LoopbackController
+from tests.test_rtde_loopback import Q_HOME, hang_guard
+
+HOST = "127.0.0.4"  # apart from the other loopback test files' addresses
+CELL_TOML = """
+[robot]
+joint_speed_deg_s = 90.0
+joint_acceleration_deg_s2 = 180.0
+dwell_s = 0.1
+pose_sigma_mm = 0.0   # the loopback reports the simulated arm's exact pose
+pose_sigma_deg = 0.0
+[camera]
+colour_size = [640, 480]
+warmup_frames = 2
+burst = 4
+timeout_s = 2.0
+"""
+
+
+def _scenario() -> Scenario:
+    """The default cell with the D435 stand-in's colour intrinsics and exact robot poses (as
+    the loopback controller reports them)."""
+    scenario = d435_scenario(load_scenario(None))
+    robot_pose = scenario.noise.robot_pose.model_copy(update={"enabled": False})
+    return scenario.model_copy(update={"noise": scenario.noise.model_copy(update={"robot_pose": robot_pose})})
+
+
+def _write_pose_waypoints(path: Path, scenario: Scenario, count: int | None = None) -> Path:
+    lines = ["x_m,y_m,z_m,qw,qx,qy,qz,label"]
+    for w in scenario_waypoints(scenario)[:count]:
+        t, q = xyz_quat_from_transform(w.T_base_flange)
+        lines.append(",".join(repr(float(v)) for v in (*t, *q)) + f",{w.label}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@dataclass
+class RealCell:
+    """The loopback controller and the software camera over one simulated cell."""
+
+    cell: SimCell
+    lock: threading.Lock
+    controller: LoopbackController
+    device: SoftwareD435
+    cell_file: Path
+
+    def record(self, *options: str, read_line: object = None) -> int:
+        argv = ["record", "--robot", HOST, "--camera", SERIAL, "--cell", str(self.cell_file), *options]
+        return record.run(build_parser().parse_args(argv), self.device.context, read_line)
+
+
+def _real_cell(tmp_path: Path, seed: int) -> Iterator[RealCell]:
+    hang_guard()
+    cell = SimCell(_scenario(), np.random.default_rng(seed), depth_sensor=d435_depth_sensor())
+    cell.set_joints(Q_HOME)
+    lock = threading.Lock()
+    cell_file = tmp_path / "cell.toml"
+    cell_file.write_text(CELL_TOML)
+    controller = LoopbackController(cell, lock, host=HOST, speedup=4.0).start()
+    try:
+        with SoftwareD435(cell, lock, np.random.default_rng(seed + 1)) as device:
+            yield RealCell(cell, lock, controller, device, cell_file)
+    finally:
+        controller.close()
+
+
+@pytest.fixture
+def real_cell(tmp_path: Path) -> Iterator[RealCell]:
+    yield from _real_cell(tmp_path, TEST_SEED)
+
+
+def _ekf(dataset: Path, T_flange_cam: np.ndarray) -> tuple[float, float, float]:
+    """ekf's translation error (mm), rotation error (deg) and root-sum-square translation sigma (mm)."""
+    (result,) = calibrate_dataset(dataset, CalibrateSettings(method="ekf"), quiet=True)
+    dt_m, dr_rad = pose_error(result.T_flange_cam, T_flange_cam)
+    return 1e3 * dt_m, float(np.degrees(dr_rad)), float(np.linalg.norm(result.sigma_translation_mm))
+
+
+def test_record_on_the_real_cell_path_calibrates_like_the_simulator(
+    real_cell: RealCell, tmp_path: Path
+) -> None:
+    """The loopback reports exact flange poses, so both datasets have no robot pose noise and
+    differ only in the camera path (librealsense, a 4-frame burst) and the session's timing."""
+    scenario = _scenario()
+    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", scenario)
+    out = tmp_path / "recorded"
+    assert real_cell.record("--waypoints", str(waypoints), "--out", str(out), "--yes") == 0
+    dataset = load_dataset(out)
+    assert dataset.metadata["recording"] == "complete" and dataset.metadata["source"] == "ur-realsense"
+    assert len(dataset) == len(scenario_waypoints(scenario))
+    assert dataset.metadata["cell"]["camera"]["device"]["serial"] == SERIAL
+    assert (out / "depth_samples" / "000000.png").is_file()
+    # A frame's reported pose is the simulated arm's pose at its joints.
+    with real_cell.lock:
+        real_cell.cell.set_joints(dataset.rows[-1]["joints"])
+        dt, dr = pose_error(dataset.rows[-1]["T_base_flange"], real_cell.cell.true_flange_pose())
+    assert dt < 1e-6 and dr < 1e-6
+    simulated = simulate(scenario, tmp_path / "simulated", TEST_SEED, progress=False).out_dir
+    truth = scenario.mount.transform()
+    on_cell, in_sim = _ekf(out, truth), _ekf(simulated, truth)
+    print(f"ekf (error mm, error deg, sigma mm): real-cell path {on_cell}, simulator {in_sim}")
+    # Same views and noise models: the same uncertainty, and an error no larger than the
+    # simulator's by more than three of those sigmas.
+    assert on_cell[2] == pytest.approx(in_sim[2], rel=0.1)
+    assert on_cell[0] <= in_sim[0] + 3 * in_sim[2]
+
+
+def test_a_dropped_connection_stops_the_session_and_resume_finishes_it(
+    real_cell: RealCell, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario(), count=6)
+    out = tmp_path / "recorded"
+    options = ("--waypoints", str(waypoints), "--out", str(out), "--yes", "--no-live")
+
+    def drop_during_the_third_move() -> None:
+        """The cable pulled while the arm moves. Not while a command is being sent: ur_rtde
+        then waits for the controller's answer for up to 300 s whatever we do."""
+        frames = out / "frames.csv"
+        while not frames.is_file() or len(frames.read_text().splitlines()) < 3:
+            threading.Event().wait(0.01)
+        while not real_cell.controller.status()["moving"]:
+            threading.Event().wait(0.005)
+        threading.Event().wait(0.05)
+        real_cell.controller.drop_connections()
+
+    dropper = threading.Thread(target=drop_during_the_third_move, daemon=True)
+    dropper.start()
+    assert real_cell.record(*options) == record.EXIT_STOPPED
+    dropper.join(timeout=5)
+    err = capsys.readouterr().err
+    assert f"session stopped: lost the connection to the UR controller at {HOST}" in err
+    assert "run the same command with --resume" in err
+    kept = load_dataset(out)
+    assert kept.metadata["recording"] == "interrupted" and 2 <= len(kept) < 6
+    first_rgb = (out / "rgb" / "000000.png").read_bytes()
+
+    real_cell.controller.restore_connections()
+    assert real_cell.record(*options) == 2  # --out exists: refused before anything moves
+    assert "add --resume" in capsys.readouterr().err
+    assert real_cell.record(*options, "--resume") == 0
+    done = load_dataset(out)
+    assert done.metadata["recording"] == "complete" and len(done) == 6
+    assert sorted(row["waypoint"] for row in done.rows) == list(range(6))
+    assert (out / "rgb" / "000000.png").read_bytes() == first_rgb
+
+
+def test_dry_run_and_refusals_move_nothing(real_cell: RealCell, tmp_path: Path, capsys) -> None:
+    scenario = _scenario()
+    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", scenario, count=3)
+    boxed = tmp_path / "boxed.toml"  # a workspace box that leaves out the first (highest) waypoint
+    y0 = scenario_waypoints(scenario)[0].T_base_flange[1, 3]
+    boxed.write_text(CELL_TOML.replace("[robot]", f"[robot]\nworkspace_upper_m = [1.0, {y0 - 0.01}, 1.0]"))
+    out = tmp_path / "recorded"
+    with real_cell.lock:
+        start = real_cell.cell.joints.copy()
+
+    real_cell.cell_file = boxed
+    assert real_cell.record("--waypoints", str(waypoints), "--out", str(out), "--dry-run") == 0
+    printed = capsys.readouterr().out
+    assert "plan: 3 waypoints, 2 to visit, 1 skipped" in printed
+    assert "outside the workspace box" in printed and "dry run: nothing moved" in printed
+
+    answers = iter(["no"])
+    assert (
+        real_cell.record("--waypoints", str(waypoints), "--out", str(out), read_line=lambda _: next(answers))
+        == 2
+    )
+    assert "not started: nothing moved" in capsys.readouterr().out
+    # Without --yes and without a terminal to ask on (pytest's stdin), the session refuses.
+    assert real_cell.record("--waypoints", str(waypoints), "--out", str(out)) == 2
+    assert "pass --yes" in capsys.readouterr().err
+    with real_cell.lock:
+        np.testing.assert_array_equal(real_cell.cell.joints, start)
+    assert not out.exists()
+
+
+def test_record_sim_is_the_simulation_and_run_calibrates(tmp_path: Path, capsys) -> None:
+    """The session on the simulated cell draws the same noise as `hec simulate`, frame for frame."""
+    simulated = simulate(load_scenario(None), tmp_path / "simulated", TEST_SEED, progress=False).out_dir
+    out = tmp_path / "recorded"
+    assert main(["run", "--sim", "--seed", str(TEST_SEED), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "[17/17] waypoint 16" in printed and "ekf: t [" in printed and "vs ground truth" in printed
+    recorded, reference = load_dataset(out), load_dataset(simulated)
+    assert recorded.metadata["recording"] == "complete" and len(recorded) == len(reference)
+    for i in range(len(reference)):
+        for column in ("rgb", "depth"):
+            assert (out / recorded.rows[i][column]).read_bytes() == (
+                simulated / reference.rows[i][column]
+            ).read_bytes()
+        np.testing.assert_array_equal(recorded.rows[i]["T_base_flange"], reference.rows[i]["T_base_flange"])
+    assert (out / record.CALIBRATION_FILE).is_file()
