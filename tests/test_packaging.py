@@ -20,7 +20,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGES = ("sim", "estimator", "experiments", "hardware")
-MODEL_PATTERNS = ("*.xml", "boards/*.json", "scenarios/*.toml", "scenarios/*.csv")
+MODEL_PATTERNS = ("*.xml", "boards/*.json", "cells/*.toml", "scenarios/*.toml", "scenarios/*.csv")
 _NOT_COPIED = shutil.ignore_patterns(
     ".git",
     ".venv",
