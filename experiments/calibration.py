@@ -468,6 +468,7 @@ def _context(
 ) -> dict:
     return {
         "dataset": str(dataset.root),
+        "pose_frame": dataset.metadata.get("pose_frame", "flange"),
         "frames_used": len(problem.frames),
         "frames_left_out": list(problem.rejected),
         "use_depth": settings.use_depth,
@@ -484,6 +485,11 @@ def _print_header(
     n = problem.robot_noise
     inputs = "pixels and depth" if settings.use_depth else "pixels only"
     print(f"dataset: {dataset.root} ({len(dataset)} frames; observations {source})")
+    if dataset.metadata.get("pose_frame") == "tcp":
+        print(
+            "robot poses: the controller's TCP, not the flange (dataset.json 'pose_frame'): the "
+            "T_flange_cam below is the camera in that TCP frame"
+        )
     print(
         f"problem: {len(problem.frames)} frames, {problem.observation_count} marker observations of "
         f"{len(problem.marker_ids)} markers ({inputs}; map: {settings.map_model}); robot pose noise "

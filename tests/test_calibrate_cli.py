@@ -224,3 +224,15 @@ def test_write_json_keeps_the_old_file_when_writing_fails(tmp_path: Path) -> Non
         write_json(path, {"value": object()})
     assert json.loads(path.read_text()) == {"value": None}
     assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
+
+
+def test_a_dataset_of_tcp_poses_says_so(default_dataset: Path, tmp_path: Path) -> None:
+    """A real-cell session recorded with pose_frame 'tcp' calibrates the camera in the TCP
+    frame; the report and the JSON say which frame the result is in."""
+    copy = tmp_path / "tcp"
+    shutil.copytree(default_dataset, copy)
+    meta = json.loads((copy / "dataset.json").read_text())
+    (copy / "dataset.json").write_text(json.dumps(meta | {"pose_frame": "tcp"}))
+    code, out, _ = run_hec(["calibrate", str(copy), "--json", str(tmp_path / "r.json"), "--quiet"])
+    assert code == 0 and "robot poses: the controller's TCP, not the flange" in out
+    assert json.loads((tmp_path / "r.json").read_text())["pose_frame"] == "tcp"
