@@ -13,7 +13,7 @@ from estimator.dataset import DatasetError
 from estimator.geometry import rpy_from_transform, xyz_quat_from_transform
 from estimator.observations import ObservationCacheError
 from estimator.problem import CalibrationInputError
-from experiments import record, regress, report, sweep
+from experiments import record, regress, report, sweep, teach
 
 USER_ERRORS = (
     BoardDefinitionError,
@@ -190,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_parser(sub)
     regress.add_parser(sub)
     record.add_parsers(sub)
+    teach.add_parser(sub)
     return parser
 
 
@@ -213,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
             return _run_calibrate(args)
         if args.command in ("record", "run"):
             return record.run(args)
+        if args.command == "teach":
+            return teach.run(args)
         if args.command in ("sweep", "report", "regress"):
             return {"sweep": sweep, "report": report, "regress": regress}[args.command].run(args)
         from sim.scenario import ScenarioError, load_scenario

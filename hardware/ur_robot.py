@@ -208,6 +208,7 @@ class URRobot:
     def teach_mode(self, on: bool) -> None:
         """Let the arm be moved by hand (UR teach mode, freedrive) or end it."""
         control = self._controller()
+        self._check_connected()  # a command sent to a lost controller may wait forever for its answer
         if not (control.teachMode() if on else control.endTeachMode()):
             raise RobotError(f"the controller refused to {'start' if on else 'end'} teach mode")
 

@@ -3,6 +3,7 @@ against the loopback UR controller and the RealSense software device sharing one
 
 from __future__ import annotations
 
+import faulthandler
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -25,6 +26,9 @@ from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 
 HOST = "127.0.0.4"  # apart from the other loopback test files' addresses
+# Longest a session test may take before the watchdog ends the process (ur_rtde calls cannot
+# be interrupted); the 17-waypoint recording takes ~35 s on a quiet 2-core machine.
+HANG_LIMIT_S = 240.0
 CELL_TOML = """
 [robot]
 joint_speed_deg_s = 90.0
@@ -73,7 +77,7 @@ class RealCell:
 
 
 def _real_cell(tmp_path: Path, seed: int) -> Iterator[RealCell]:
-    hang_guard()
+    hang_guard(HANG_LIMIT_S)
     cell = SimCell(_scenario(), np.random.default_rng(seed), depth_sensor=d435_depth_sensor())
     cell.set_joints(Q_HOME)
     lock = threading.Lock()
@@ -85,6 +89,7 @@ def _real_cell(tmp_path: Path, seed: int) -> Iterator[RealCell]:
             yield RealCell(cell, lock, controller, device, cell_file)
     finally:
         controller.close()
+        faulthandler.cancel_dump_traceback_later()
 
 
 @pytest.fixture

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import threading
 from collections.abc import Iterator
 
@@ -32,6 +33,7 @@ def cell_and_controller() -> Iterator[tuple[SimCell, threading.Lock, LoopbackCon
     finally:
         controller.close()
         cell.close()
+        faulthandler.cancel_dump_traceback_later()
 
 
 def _robot(cell: SimCell, **kwargs: object) -> URRobot:
