@@ -15,6 +15,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,10 @@ from experiments.cell_config import CellConfig, CellConfigError, load_cell_confi
 from experiments.session import LiveEstimate, SessionCell, SimulatedCell, run_session
 from sim.kinematics import ROBOTS, forward, solve_ik_nearest
 from sim.trajectory import PlannedMove, Waypoint, WaypointFileError, read_waypoint_file
+
+if TYPE_CHECKING:
+    from hardware.cell import HardwareCell
+    from hardware.ur_robot import URRobot
 
 EXIT_STOPPED = 3
 CALIBRATION_FILE = "calibration.json"
@@ -96,7 +101,7 @@ def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], di
     return SimulatedCell(cell), waypoints, extra, truth, lambda q: forward(cell.cell.kinematics, q)
 
 
-def _open_robot(args: argparse.Namespace, config: CellConfig) -> object:
+def _open_robot(args: argparse.Namespace, config: CellConfig) -> URRobot:
     from hardware.ur_robot import URRobot
 
     host = args.robot or config.robot.host
@@ -251,7 +256,7 @@ def _record_hardware(
             return _session(args, cell, moves, _hardware_metadata(args, config, cell), None)
 
 
-def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: object) -> dict:
+def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: HardwareCell) -> dict:
     extra = {
         "depth_noise": config.camera.depth_noise(cell.depth_scale_m).to_dict(),
         "robot_pose_noise": config.robot.pose_noise().to_dict(),

@@ -172,6 +172,18 @@ def test_a_dropped_connection_stops_the_session_and_resume_finishes_it(
     assert (out / "rgb" / "000000.png").read_bytes() == first_rgb
 
 
+def test_a_protective_stop_stops_the_session_and_says_so(real_cell: RealCell, tmp_path: Path, capsys) -> None:
+    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario(), count=2)
+    out = tmp_path / "recorded"
+    real_cell.controller.obstruct_next_move(0.5, protective_stop=True)  # a collision on the first move
+    assert real_cell.record("--waypoints", str(waypoints), "--out", str(out), "--yes", "--no-live") == 3
+    err = capsys.readouterr().err
+    assert "session stopped: the arm is in protective stop: clear the cause, then unlock it" in err
+    stopped = load_dataset(out)
+    assert stopped.metadata["recording"] == "interrupted" and len(stopped) == 0
+    assert "protective stop" in stopped.metadata["session"]["stopped"]
+
+
 def test_dry_run_and_refusals_move_nothing(real_cell: RealCell, tmp_path: Path, capsys) -> None:
     scenario = _scenario()
     waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", scenario, count=3)
