@@ -18,11 +18,12 @@ from estimator.problem import build_problem, dataset_robot_noise
 from experiments.detection import detect_and_cache
 from hardware.realsense import CameraError, RealSenseCamera, RealSenseSettings
 from sim.cell import SimCell
-from sim.scenario import load_scenario
+from sim.scenario import DepthNoise, load_scenario
 from sim.simulate import scenario_waypoints, simulate
 from tests.conftest import TEST_SEED
 from tests.realsense_software import (
     COLOUR_INTRINSICS,
+    DEPTH_INTRINSICS,
     SERIAL,
     SoftwareD435,
     d435_depth_sensor,
@@ -54,6 +55,16 @@ def _marker_centre_depths(cell: SimCell, camera: RealSenseCamera, depth_m: np.nd
         A = np.stack([us[valid] - u, vs[valid] - v, np.ones(valid.sum())], axis=1)
         rows.append((p_cam[2], np.linalg.lstsq(A, z[valid], rcond=None)[0][2]))
     return np.array(rows)
+
+
+def _plane_sigma(z: np.ndarray, noise: DepthNoise, frames: int) -> np.ndarray:
+    """1-sigma (metres) of _marker_centre_depths' plane at depths z (n,), from a burst mean of
+    `frames` noisy frames. The 9x9 colour pixels are re-sampled from fewer, larger depth
+    pixels (the depth imager's focal length is smaller), which carry the independent noise:
+    81 (f_depth / f_colour)^2 of them, about 38 here."""
+    one_pixel = z * z * noise.subpixel / (noise.focal_px * noise.baseline_m)
+    independent = 81 * (DEPTH_INTRINSICS.fx / COLOUR_INTRINSICS.fx) ** 2
+    return one_pixel / np.sqrt(independent * frames)
 
 
 def test_intrinsics_extrinsics_and_depth_scale_come_from_librealsense() -> None:
@@ -100,9 +111,7 @@ def test_depth_at_marker_centres_within_the_noise() -> None:
                 depths.append(_marker_centre_depths(cell, camera, camera.capture().depth_m))
     depths = np.concatenate(depths)
     z = depths[:, 0]
-    one_pixel_sigma = z * z * noise.subpixel / (noise.focal_px * noise.baseline_m)
-    # The plane through 81 pixels of a 4-frame mean: sigma / 18 each; 4 sigma of that.
-    assert np.all(np.abs(depths[:, 1] - z) < 4 * one_pixel_sigma / 18)
+    assert np.all(np.abs(depths[:, 1] - z) < 4 * _plane_sigma(z, noise, frames=4))
 
 
 def record_through_librealsense(simulated: Path, out: Path, seed: int, burst: int) -> Path:
@@ -175,8 +184,7 @@ def test_a_recording_plays_back_through_the_same_source(tmp_path: Path) -> None:
         depths = _marker_centre_depths(cell, played, replay.depth_m)
         noise = cell.scenario.noise.depth
         z = depths[:, 0]
-        sigma_plane = z * z * noise.subpixel / (noise.focal_px * noise.baseline_m) / np.sqrt(81 * 3)
-        assert np.all(np.abs(depths[:, 1] - z) < 4 * sigma_plane)
+        assert np.all(np.abs(depths[:, 1] - z) < 4 * _plane_sigma(z, noise, frames=3))
         with pytest.raises(CameraError, match="the recording ended after"):
             for _ in range(100):
                 played.capture()
