@@ -267,25 +267,30 @@ class URRobot:
 
         A blocking ur_rtde move never returns when the connection drops during the move
         (measured against the loopback controller), so the move is asynchronous and this
-        loop checks the connection, the safety mode and the program every 10 ms. A failed
-        move is given _CAUSE_WAIT_S for a stop or a lost connection to reach the receive
-        stream (it lags the command channel) before it is reported without a cause.
+        loop checks the connection, the safety mode and the program every 10 ms; Ctrl-C stops
+        the arm (stopJ) before it is passed on. A failed move is given _CAUSE_WAIT_S for a
+        stop or a lost connection to reach the receive stream (it lags the command channel)
+        before it is reported without a cause.
         """
         control = self._controller()
         self._check_connected()  # a command sent to a lost controller waits 300 s for its answer
-        failed = not send(control)
-        deadline = time.monotonic() + self.motion.move_timeout_s
-        while not failed:
-            self._check_connected()
-            self._check_safety()
-            if control.getAsyncOperationProgress() < 0:
-                break
-            if not control.isProgramRunning():
-                failed = True
-            elif time.monotonic() > deadline:
-                control.stopJ(self.motion.joint_acceleration)
-                raise RobotError(f"{command} did not finish within {self.motion.move_timeout_s:g} s")
-            time.sleep(0.01)
+        try:
+            failed = not send(control)
+            deadline = time.monotonic() + self.motion.move_timeout_s
+            while not failed:
+                self._check_connected()
+                self._check_safety()
+                if control.getAsyncOperationProgress() < 0:
+                    break
+                if not control.isProgramRunning():
+                    failed = True
+                elif time.monotonic() > deadline:
+                    control.stopJ(self.motion.joint_acceleration)
+                    raise RobotError(f"{command} did not finish within {self.motion.move_timeout_s:g} s")
+                time.sleep(0.01)
+        except KeyboardInterrupt:
+            control.stopJ(self.motion.joint_acceleration)  # Ctrl-C: an asynchronous move would go on
+            raise
         if failed:
             cause_deadline = time.monotonic() + _CAUSE_WAIT_S
             while time.monotonic() < cause_deadline:

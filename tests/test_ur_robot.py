@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import _thread
 import faulthandler
 import threading
 from collections.abc import Iterator
@@ -110,3 +111,20 @@ def test_a_lost_connection_is_reported(cell_and_controller) -> None:
             for _ in range(200):
                 robot.joints()
                 threading.Event().wait(0.01)
+
+
+def test_ctrl_c_during_a_move_stops_the_arm(cell_and_controller) -> None:
+    """Moves are asynchronous, so an interrupted session must stop the arm itself."""
+    cell, lock, controller = cell_and_controller
+    slow = MotionSettings(joint_speed=0.5, joint_acceleration=1.0, dwell_s=0.1)
+    target = Q_HOME + np.array([1.5, 0.0, 0.0, 0.0, 0.0, 0.0])  # 3 s of motion, 0.75 s at speedup 4
+    with URRobot(HOST, slow, forward=lambda q: forward(cell.cell.kinematics, q)) as robot:
+        ctrl_c = threading.Timer(0.15, _thread.interrupt_main)
+        ctrl_c.start()
+        with pytest.raises(KeyboardInterrupt):
+            robot.move_joints(target)
+        robot.wait_settled()
+        assert not controller.status()["moving"]
+        with lock:
+            short_by = float(np.max(np.abs(cell.joints - target)))
+    assert short_by > 0.5
