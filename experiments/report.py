@@ -346,7 +346,7 @@ def _figure(width: float, height: float, rows: int = 1, cols: int = 1, **kwargs:
     return fig, fig.subplots(rows, cols, squeeze=False, **kwargs)
 
 
-def _log_axis(ax: object, which: str = "y") -> None:
+def plain_log_axis(ax: object, which: str = "y") -> None:
     """Log axis labelled with plain numbers (0.2, 0.3, 0.5, 1, 2) rather than powers of ten; over
     more than a decade and a half only 2 and 5 between the decades."""
     from matplotlib.ticker import FuncFormatter
@@ -442,13 +442,13 @@ def plot_error_vs_parameter(rows: list[dict], parameter: str) -> object:
             }
             crb.append(_rms(np.array(list(per_trial.values()))))
         ax.plot(x, crb, "k--", lw=2, label="Cramer-Rao bound")
-        _log_axis(ax)
+        plain_log_axis(ax)
         ax.set_xlabel(PARAMETER_LABELS.get(parameter, parameter))
         ax.set_ylabel(f"RMS {'translation' if unit == 'mm' else 'rotation'} error [{unit}]")
         if labels is not None:
             ax.set_xticks(x, labels)
         elif np.all(x > 0) and x.max() >= 8 * x.min():  # levels growing by factors: log x
-            _log_axis(ax, "x")
+            plain_log_axis(ax, "x")
         ax.grid(alpha=0.3, which="both")
     _legend_below(fig, axes[0, 0])
     others = [p for p in swept_parameters(rows) if p != parameter]
@@ -506,7 +506,7 @@ def plot_boxes(rows: list[dict]) -> object:
                 ax.text(m, 0.5, "no ok trial", transform=ax.get_xaxis_transform(), ha="center", color="0.4")
         ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right")
         ax.set_xlim(-0.6, len(methods) - 0.4)
-        _log_axis(ax)
+        plain_log_axis(ax)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3, axis="y", which="both")
     _legend_below(fig, axes[0, 0])

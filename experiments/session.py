@@ -27,11 +27,14 @@ from estimator.observations import (
     save_observations,
 )
 from estimator.problem import CalibrationInputError, build_problem, dataset_robot_noise
+from experiments.session_plot import PLOT_FILE, plot_convergence
 from hardware.realsense import CameraError
 from hardware.ur_robot import RobotError
 from sim.cell import SimCell, WaypointRejected
 from sim.trajectory import PlannedMove, Waypoint
 
+# Why the running estimate may not exist yet: too few usable frames, or the method failed.
+_NOT_YET = (CalibrationInputError, ValueError, np.linalg.LinAlgError)
 # What stops a session (the frames recorded before stay): the arm, the camera, or Ctrl-C.
 SESSION_STOPS = (RobotError, CameraError, KeyboardInterrupt)
 
@@ -114,16 +117,28 @@ class LiveEstimate:
             found += f" ({obs.problem})"
         return f"{found} | {self.method}: {self._estimate_line()}"
 
-    def estimate(self) -> Calibration:
-        """The method's result over every frame so far. Raises CalibrationInputError (too few
-        usable frames) and the method's own errors."""
-        problem = build_problem(self.observations, self.board, self.intrinsics, self.robot_noise)
-        return run_method(self.method, problem, MethodOptions(), self.observations)
+    def estimate(self, observations: list[FrameObservations] | None = None) -> Calibration:
+        """The method's result over the given observations (default: every frame so far).
+        Raises CalibrationInputError (too few usable frames) and the method's own errors."""
+        observations = self.observations if observations is None else observations
+        problem = build_problem(observations, self.board, self.intrinsics, self.robot_noise)
+        return run_method(self.method, problem, MethodOptions(), observations)
+
+    def history(self) -> list[tuple[int, Calibration]]:
+        """The estimate after each frame so far, as (frames used, result), from the first
+        frame count that calibrates."""
+        results = []
+        for count in range(1, len(self.observations) + 1):
+            try:
+                results.append((count, self.estimate(self.observations[:count])))
+            except _NOT_YET:
+                continue
+        return results
 
     def _estimate_line(self) -> str:
         try:
             cal = self.estimate()
-        except (CalibrationInputError, ValueError, np.linalg.LinAlgError) as exc:
+        except _NOT_YET as exc:
             return f"not yet ({exc})"
         t = 1e3 * cal.T_flange_cam[:3, 3]
         line = "t [" + " ".join(f"{v:+.2f}" for v in t) + "] mm"
@@ -132,9 +147,14 @@ class LiveEstimate:
             line += ", rotation +- [" + " ".join(f"{v:.3f}" for v in cal.sigma_rotation_deg) + "] deg"
         return line
 
-    def save(self, root: Path) -> Path:
-        """Write the observations as the dataset's detections.json (after its last change)."""
-        return save_observations(root, self.observations, self.settings, self.depth_noise)
+    def save(self, root: Path) -> list[Path]:
+        """Write the observations as the dataset's detections.json (after its last change) and,
+        once the estimate has a sigma, the picture of how it settled. Returns the files."""
+        written = [save_observations(root, self.observations, self.settings, self.depth_noise)]
+        history = self.history()
+        if any(c.covariance is not None for _, c in history):
+            written.append(plot_convergence(history, root / PLOT_FILE))
+        return written
 
 
 @dataclass

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -17,6 +18,7 @@ from estimator.geometry import pose_error, xyz_quat_from_transform
 from experiments import record
 from experiments.calibration import CalibrateSettings, calibrate_dataset
 from experiments.cli import build_parser, main
+from experiments.session_plot import PLOT_FILE
 from sim.cell import SimCell
 from sim.scenario import Scenario, load_scenario
 from sim.simulate import scenario_waypoints, simulate
@@ -230,3 +232,5 @@ def test_record_sim_is_the_simulation_and_run_calibrates(tmp_path: Path, capsys)
             ).read_bytes()
         np.testing.assert_array_equal(recorded.rows[i]["T_base_flange"], reference.rows[i]["T_base_flange"])
     assert (out / record.CALIBRATION_FILE).is_file()
+    plot = cv2.imread(str(out / PLOT_FILE))
+    assert plot is not None and plot.shape[0] > 400
