@@ -15,7 +15,9 @@ from typing import Protocol
 
 import numpy as np
 
+from estimator.board import BoardDefinition
 from estimator.calibration import Calibration, MethodOptions
+from estimator.camera import CameraIntrinsics
 from estimator.dataset import Capture, DatasetRecorder, Frame, load_dataset
 from estimator.detect import DetectorSettings, QRDetector
 from estimator.methods import DEFAULT_METHOD, run_method
@@ -40,13 +42,17 @@ SESSION_STOPS = (RobotError, CameraError, KeyboardInterrupt)
 
 
 class SessionCell(Protocol):
+    """What a session needs of a cell: what its camera is, a plan of joint targets, moving
+    (raises WaypointRejected to skip a waypoint, a SESSION_STOPS error to stop) and capturing."""
+
     source: str
+    intrinsics: CameraIntrinsics
+    board: BoardDefinition
     depth_scale_m: float
 
     def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]: ...
     def move_to(self, move: PlannedMove) -> None: ...
     def capture(self) -> Capture: ...
-    def describe(self) -> dict: ...
     def close(self) -> None: ...
 
 
@@ -85,9 +91,6 @@ class SimulatedCell:
     def capture(self) -> Capture:
         frame, truth = self.cell.capture()
         return Capture(frame, true_T_base_flange=truth.T_base_flange, true_joints=truth.joints)
-
-    def describe(self) -> dict:
-        return {}
 
     def close(self) -> None:
         self.cell.close()
