@@ -208,7 +208,6 @@ class URRobot:
     def teach_mode(self, on: bool) -> None:
         """Let the arm be moved by hand (UR teach mode, freedrive) or end it."""
         control = self._controller()
-        self._check_connected()  # a command sent to a lost controller may wait forever for its answer
         if not (control.teachMode() if on else control.endTeachMode()):
             raise RobotError(f"the controller refused to {'start' if on else 'end'} teach mode")
 
@@ -244,13 +243,15 @@ class URRobot:
     # --- internals -------------------------------------------------------------------------
 
     def _controller(self) -> object:
-        """The RTDEControlInterface, connected on first use; reads the TCP offset."""
+        """The RTDEControlInterface, connected on first use (reads the TCP offset), for one
+        command. The connection is checked every time: a command sent to a lost controller
+        waits for its answer (a move up to 300 s, endTeachMode forever)."""
         if self.read_only:
             raise RobotError("this robot was opened read-only (a dry run); it cannot move")
+        self._check_connected()
         if self._control is None:
             import rtde_control
 
-            self._check_connected()
             self._check_safety()
             try:
                 self._control = rtde_control.RTDEControlInterface(self.host)
@@ -273,7 +274,6 @@ class URRobot:
         before it is reported without a cause.
         """
         control = self._controller()
-        self._check_connected()  # a command sent to a lost controller waits 300 s for its answer
         try:
             failed = not send(control)
             deadline = time.monotonic() + self.motion.move_timeout_s
