@@ -9,6 +9,7 @@ Command-line options (``--robot``, ``--camera``) override the file.
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Literal
 
@@ -18,7 +19,8 @@ from pydantic import Field, ValidationError, model_validator
 from estimator.depth import DepthNoiseModel
 from estimator.problem import RobotPoseNoise
 from hardware.realsense import FILTERS, RealSenseSettings
-from hardware.ur_robot import MotionSettings, SafetyLimits
+from hardware.ur_robot import MotionSettings, SafetyLimits, URRobot
+from sim.kinematics import ROBOTS, forward
 from sim.scenario import _Section, validation_problems
 
 Vector3 = tuple[float, float, float]
@@ -125,6 +127,30 @@ class CellConfig(_Section):
 
     def to_dict(self) -> dict:
         return self.model_dump(mode="json")
+
+    def robot_host(self, option: str | None) -> str:
+        """--robot HOST, else robot.host; CellConfigError when neither gives one."""
+        host = option or self.robot.host
+        if not host:
+            raise CellConfigError("no robot address: give --robot HOST or robot.host in the cell file")
+        return host
+
+    def open_robot(self, host: str, read_only: bool = False) -> URRobot:
+        """The arm at host with this file's limits, workspace checked with its model's kinematics."""
+        kinematics = ROBOTS[self.robot.model]
+        return URRobot(
+            host,
+            self.robot.motion(),
+            self.robot.limits(),
+            forward=lambda q: forward(kinematics, q),
+            read_only=read_only,
+        )
+
+    def camera_settings(self, serial_option: str | None) -> RealSenseSettings:
+        """The camera settings with --camera [SERIAL] applied: a serial, "" for the first
+        camera found, None to keep camera.serial."""
+        settings = self.camera.realsense()
+        return settings if serial_option is None else replace(settings, serial=serial_option or None)
 
 
 def load_cell_config(path: str | Path | None) -> CellConfig:

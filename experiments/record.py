@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,7 +27,6 @@ from sim.trajectory import PlannedMove, Waypoint, WaypointFileError, read_waypoi
 
 if TYPE_CHECKING:
     from hardware.cell import HardwareCell
-    from hardware.ur_robot import URRobot
 
 EXIT_STOPPED = 3
 CALIBRATION_FILE = "calibration.json"
@@ -99,24 +97,6 @@ def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], di
         "simulation": {"seed": seed, "scenario": scenario.to_dict()},
     }
     return SimulatedCell(cell), waypoints, extra, truth, lambda q: forward(cell.cell.kinematics, q)
-
-
-def _open_robot(args: argparse.Namespace, config: CellConfig) -> URRobot:
-    from hardware.ur_robot import URRobot
-
-    host = args.robot or config.robot.host
-    if not host:
-        raise RecordError(
-            "give the robot's address with --robot HOST (or robot.host in the cell file), or --sim"
-        )
-    kinematics = ROBOTS[config.robot.model]
-    return URRobot(
-        host,
-        config.robot.motion(),
-        config.robot.limits(),
-        forward=lambda q: forward(kinematics, q),
-        read_only=args.dry_run,
-    )
 
 
 def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None]:
@@ -229,7 +209,7 @@ def _record_hardware(
     waypoints = read_waypoint_file(args.waypoints)
     kinematics = ROBOTS[config.robot.model]
     inverse = _inverse(config.robot.model)
-    with _open_robot(args, config) as robot:
+    with config.open_robot(config.robot_host(args.robot), read_only=args.dry_run) as robot:
         moves = plan_moves(robot, inverse, waypoints)
         _print_plan(moves, lambda q: forward(kinematics, q))
         print(
@@ -240,10 +220,7 @@ def _record_hardware(
         if args.dry_run:
             print("dry run: nothing moved")
             return 0
-        settings = config.camera.realsense()
-        if args.camera is not None:
-            settings = replace(settings, serial=args.camera or None)
-        with RealSenseCamera(settings, camera_context) as camera:
+        with RealSenseCamera(config.camera_settings(args.camera), camera_context) as camera:
             usable = sum(m.joints is not None for m in moves)
             question = (
                 f"The arm at {robot.host} will move through {usable} waypoints. Keep the cell clear and a "

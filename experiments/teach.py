@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
-import dataclasses
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -25,7 +24,6 @@ from estimator.detect import DetectorSettings, QRDetector
 from experiments.cell_config import CellConfigError, load_cell_config
 from hardware.realsense import CameraError, RealSenseCamera
 from hardware.ur_robot import RobotError, URRobot
-from sim.kinematics import ROBOTS, forward
 from sim.scene import find_board
 from sim.trajectory import JOINT_COLUMNS, WaypointFileError
 
@@ -74,20 +72,13 @@ def run(
     """
     try:
         config = load_cell_config(args.cell)
-        host = args.robot or config.robot.host
-        if host is None:
-            raise CellConfigError("no robot address: give --robot HOST or robot.host in the --cell file")
+        host = config.robot_host(args.robot)
         stored_before = _existing_waypoints(args.out, args.append)
         board = find_board(config.board)
         detector = QRDetector(board, DetectorSettings())
-        settings = config.camera.realsense()
-        if args.camera is not None:
-            settings = dataclasses.replace(settings, serial=args.camera or None)
-        kinematics = ROBOTS[config.robot.model]
-        motion, limits = config.robot.motion(), config.robot.limits()
         count = stored_before
-        with URRobot(host, motion, limits, forward=lambda q: forward(kinematics, q)) as robot:
-            with RealSenseCamera(settings, camera_context) as camera:
+        with config.open_robot(host) as robot:
+            with RealSenseCamera(config.camera_settings(args.camera), camera_context) as camera:
                 robot.teach_mode(True)
                 try:
                     while _next_pose(read_line):
