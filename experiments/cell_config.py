@@ -8,7 +8,6 @@ Command-line options (``--robot``, ``--camera``) override the file.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Literal
@@ -21,7 +20,7 @@ from estimator.problem import RobotPoseNoise
 from hardware.realsense import FILTERS, RealSenseSettings
 from hardware.ur_robot import MotionSettings, SafetyLimits, URRobot
 from sim.kinematics import ROBOTS, forward
-from sim.scenario import _Section, validation_problems
+from sim.scenario import _Section, read_toml, validation_problems
 
 Vector3 = tuple[float, float, float]
 Vector6 = tuple[float, float, float, float, float, float]
@@ -158,12 +157,7 @@ def load_cell_config(path: str | Path | None) -> CellConfig:
     if path is None:
         return CellConfig()
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise CellConfigError(f"{path}: cell file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise CellConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, CellConfigError, "cell")
     try:
         return CellConfig(**data)
     except ValidationError as exc:

@@ -26,13 +26,12 @@ listed in PARAMETERS. Every parameter is a column of the result rows, named as h
 from __future__ import annotations
 
 import itertools
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
+from sim.scenario import Scenario, ScenarioError, load_scenario, read_toml, scenario_from_dict
 from sim.trajectory import PAPER_OFFSETS_M, ROTATION_RICH_VIEWS_DEG
 
 MEASUREMENTS, RENDER = "measurements", "render"
@@ -287,14 +286,7 @@ def _int(path: Path, data: dict, key: str, default: int, lo: int) -> int:
 def load_config(path: str | Path) -> SweepConfig:
     """Read and validate a sweep file and resolve its cells. Raises SweepConfigError."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SweepConfigError(f"{path}: sweep file not found") from None
-    except IsADirectoryError:
-        raise SweepConfigError(f"{path}: is a folder, expected a sweep TOML file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SweepConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, SweepConfigError, "sweep")
     for key in data:
         if key not in TOP_LEVEL_KEYS:
             raise _error(path, key, f"unknown key; expected one of {', '.join(TOP_LEVEL_KEYS)}")

@@ -202,12 +202,7 @@ def load_scenario(path: str | Path | None) -> Scenario:
     if path is None:
         return Scenario()
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: scenario file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, ScenarioError, "scenario")
     if "base_dir" in data:
         raise ScenarioError(f"{path}: key 'base_dir': unknown key")
     return scenario_from_dict(data, source=str(path), base_dir=path.parent)
@@ -218,6 +213,19 @@ def scenario_from_dict(data: dict, source: str = "scenario", base_dir: Path = Pa
         return Scenario(**data, base_dir=str(base_dir))
     except ValidationError as exc:
         raise ScenarioError(validation_problems(exc, source)) from None
+
+
+def read_toml(path: Path, error: type[Exception], kind: str) -> dict:
+    """The table in the TOML file at path; raises ``error`` naming the file when it is
+    missing, a folder, or not valid TOML. kind: what the file is, in words ("scenario")."""
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise error(f"{path}: {kind} file not found") from None
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder, expected a {kind} TOML file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{path}: not valid TOML ({exc})") from None
 
 
 def validation_problems(exc: ValidationError, source: str) -> str:
