@@ -82,21 +82,21 @@ def _check_out(args: argparse.Namespace) -> None:
 
 def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], dict, GroundTruth, Callable]:
     from sim.cell import SimCell
-    from sim.noise import depth_noise_model, robot_pose_noise_model
     from sim.scenario import load_scenario
-    from sim.simulate import scenario_waypoints
+    from sim.simulate import scenario_waypoints, simulation_metadata
 
     scenario = load_scenario(args.scenario)
     seed = scenario.seed if args.seed is None else args.seed
     waypoints = read_waypoint_file(args.waypoints) if args.waypoints else scenario_waypoints(scenario)
     cell = SimCell(scenario, np.random.default_rng(seed))
-    truth = GroundTruth(cell.cell.T_flange_cam, cell.cell.T_base_board, cell.cell.T_world_base)
-    extra = {
-        "depth_noise": depth_noise_model(scenario.noise).to_dict(),
-        "robot_pose_noise": robot_pose_noise_model(scenario.noise).to_dict(),
-        "simulation": {"seed": seed, "scenario": scenario.to_dict()},
-    }
-    return SimulatedCell(cell), waypoints, extra, truth, lambda q: forward(cell.cell.kinematics, q)
+    extra = simulation_metadata(scenario, seed)
+    return (
+        SimulatedCell(cell),
+        waypoints,
+        extra,
+        cell.ground_truth(),
+        lambda q: forward(cell.cell.kinematics, q),
+    )
 
 
 def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None]:

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from estimator.camera import project_points
-from estimator.dataset import Frame
+from estimator.dataset import Frame, GroundTruth
 from estimator.geometry import invert
 from sim.kinematics import IK_RESTARTS, forward, solve_ik
 from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
@@ -125,6 +125,10 @@ class SimCell:
         return frame, FrameTruth(self.true_flange_pose(), self.joints.copy())
 
     # --- ground truth and checks ---------------------------------------------------------
+
+    def ground_truth(self) -> GroundTruth:
+        """The mount and board poses, with empty per-frame lists to fill as frames are taken."""
+        return GroundTruth(self.cell.T_flange_cam, self.cell.T_base_board, self.cell.T_world_base)
 
     def true_flange_pose(self) -> np.ndarray:
         return forward(self.cell.kinematics, self.joints)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from estimator.dataset import DatasetWriter, GroundTruth
+from estimator.dataset import DatasetWriter
 from sim.cell import SimCell, WaypointRejected
 from sim.noise import depth_noise_model, robot_pose_noise_model
 from sim.preview import write_preview
@@ -38,6 +38,16 @@ def scenario_waypoints(scenario: Scenario) -> list[Waypoint]:
     return make(scenario.board.transform(), scenario.mount.transform(), scenario.trajectory.distance_m)
 
 
+def simulation_metadata(scenario: Scenario, seed: int) -> dict:
+    """dataset.json fields of a simulated dataset: the noise the estimators should assume
+    and what produced it."""
+    return {
+        "depth_noise": depth_noise_model(scenario.noise).to_dict(),
+        "robot_pose_noise": robot_pose_noise_model(scenario.noise).to_dict(),
+        "simulation": {"seed": seed, "scenario": scenario.to_dict()},
+    }
+
+
 def simulate(
     scenario: Scenario,
     out_dir: str | Path,
@@ -54,7 +64,7 @@ def simulate(
     waypoints = scenario_waypoints(scenario)
     rng = np.random.default_rng(seed)
     cell = SimCell(scenario, rng)
-    truth = GroundTruth(cell.cell.T_flange_cam, cell.cell.T_base_board, cell.cell.T_world_base)
+    truth = cell.ground_truth()
     skipped: list[tuple[int, str]] = []
     frame_rgb: list[np.ndarray] = []
     try:
@@ -86,15 +96,10 @@ def simulate(
             if not frame_rgb:
                 raise SimulationError("no waypoint could be used; see the reasons above")
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
-            extra = {
-                "depth_noise": depth_noise_model(scenario.noise).to_dict(),
-                "robot_pose_noise": robot_pose_noise_model(scenario.noise).to_dict(),
-                "simulation": {
-                    "seed": seed,
-                    "scenario": scenario.to_dict(),
-                    "waypoints": len(waypoints),
-                    "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
-                },
+            extra = simulation_metadata(scenario, seed)
+            extra["simulation"] |= {
+                "waypoints": len(waypoints),
+                "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
             }
             final = writer.finish(truth, extra)
     finally:
