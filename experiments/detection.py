@@ -11,11 +11,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from estimator.camera import CameraIntrinsics
-from estimator.dataset import Dataset, Frame, load_dataset
-from estimator.detect import DEFAULT_PASSES, DetectorSettings
-from estimator.grading import grade_observations
-from estimator.observations import (
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import Dataset, Frame, load_dataset
+from estimator.observe.grading import grade_observations
+from estimator.observe.observations import (
     CACHE_FILE,
     FrameObservations,
     ObservationCacheError,
@@ -24,7 +23,8 @@ from estimator.observations import (
     observe_dataset,
     save_observations,
 )
-from estimator.overlay import draw_overlay
+from estimator.observe.overlay import draw_overlay
+from estimator.targets.qr import DEFAULT_PASSES, DetectorSettings
 
 OVERLAY_DIR = "overlay"
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from estimator.board import BoardDefinition, board_image
+from estimator.targets.board import BoardDefinition, board_image
 
 SCALE_BAR_M = 0.1
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.camera import CameraIntrinsics
-from estimator.geometry import make_transform
-from estimator.lie import so3_exp
-from estimator.observations import FrameObservations
-from estimator.synthetic import SyntheticNoise, synthetic_observations
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.lie import so3_exp
+from estimator.geometry.transforms import make_transform
+from estimator.geometry.waypoints import paper_waypoints, rotation_rich_waypoints
+from estimator.observe.observations import FrameObservations
+from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 from sim.scenario import load_scenario
-from sim.trajectory import paper_waypoints, rotation_rich_waypoints
 
 SCENARIO = load_scenario(None)
 BOARD = SCENARIO.board_definition()

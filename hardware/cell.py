@@ -9,11 +9,11 @@ from dataclasses import asdict
 
 import numpy as np
 
-from estimator.board import BoardDefinition
-from estimator.dataset import Capture, Frame
+from estimator.geometry.waypoints import PlannedMove, Waypoint
+from estimator.io.dataset import Capture, Frame
+from estimator.targets.board import BoardDefinition
 from hardware.realsense import RealSenseCamera
 from hardware.ur_robot import RobotError, URRobot
-from sim.trajectory import PlannedMove, Waypoint
 
 # Largest joint change (rad) between the reads before and after a capture: more means the
 # arm moved while the camera was exposing, and the pose would not belong to the images.

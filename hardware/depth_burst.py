@@ -8,8 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from estimator.camera import CameraIntrinsics
-from estimator.geometry import invert
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.transforms import invert
 
 
 class DepthResampler:

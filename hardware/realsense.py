@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pyrealsense2 as rs
 
-from estimator.camera import CameraIntrinsics
+from estimator.geometry.camera import CameraIntrinsics
 from hardware.depth_burst import DepthAverage, DepthResampler
 
 MAX_BURST = 255  # the per-pixel sample count is kept as uint8

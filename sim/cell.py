@@ -13,27 +13,19 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from estimator.camera import project_points
-from estimator.dataset import Frame, GroundTruth
-from estimator.geometry import invert
-from sim.kinematics import IK_RESTARTS, forward, solve_ik
+from estimator.geometry.camera import project_points
+from estimator.geometry.kinematics import IK_RESTARTS, forward, solve_ik
+from estimator.geometry.transforms import invert
+from estimator.geometry.waypoints import Waypoint, WaypointRejected
+from estimator.io.dataset import Frame, GroundTruth
 from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
 from sim.render import RGBDRenderer
 from sim.scenario import Scenario
 from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
-from sim.trajectory import Waypoint
 
 # Simulated timing: joint speed while moving and the settle time at each waypoint.
 JOINT_SPEED_RAD_S = 0.5
 SETTLE_S = 1.0
-
-
-class WaypointRejected(Exception):
-    """A waypoint cannot be used; ``reason`` says why in plain words."""
-
-    def __init__(self, reason: str) -> None:
-        super().__init__(reason)
-        self.reason = reason
 
 
 @dataclass(frozen=True)

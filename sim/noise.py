@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.camera import CameraIntrinsics
-from estimator.dataset import decode_depth, encode_depth
-from estimator.depth import DepthNoiseModel
-from estimator.problem import RobotPoseNoise as RobotPoseNoiseModel
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import decode_depth, encode_depth
+from estimator.observe.depth import DepthNoiseModel
+from estimator.solve.problem import RobotPoseNoise as RobotPoseNoiseModel
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.

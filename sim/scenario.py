@@ -8,16 +8,16 @@ fixed x, y, z axes: R = Rz(yaw) @ Ry(pitch) @ Rx(roll).
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
-from estimator.board import BoardDefinition
-from estimator.camera import CameraIntrinsics
-from estimator.geometry import transform_from_xyz_rpy
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.transforms import transform_from_xyz_rpy
+from estimator.io.tomlfile import Section, read_toml, validation_problems
+from estimator.targets.board import BoardDefinition, find_board
 
 Vector3 = tuple[float, float, float]
 
@@ -26,11 +26,7 @@ class ScenarioError(ValueError):
     """A scenario file cannot be read or has a bad key."""
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class CameraSettings(_Section):
+class CameraSettings(Section):
     """Colour camera. Without fx/fy/cx/cy: square pixels, centred principal point, fovy_deg."""
 
     width: int = Field(640, gt=0)
@@ -55,7 +51,7 @@ class CameraSettings(_Section):
         return CameraIntrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
 
 
-class PoseSettings(_Section):
+class PoseSettings(Section):
     translation_m: Vector3 = (0.0, 0.0, 0.0)
     rotation_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
 
@@ -81,7 +77,7 @@ class BoardSettings(PoseSettings):
     rotation_rpy_deg: Vector3 = (-90.0, 0.0, 0.0)
 
 
-class DepthNoise(_Section):
+class DepthNoise(Section):
     """Stereo depth noise, sigma(z) = z^2 * subpixel / (focal_px * baseline_m) (D435-like)."""
 
     enabled: bool = True
@@ -91,7 +87,7 @@ class DepthNoise(_Section):
     focal_px: float = Field(425.0, gt=0)
 
 
-class InvalidDepth(_Section):
+class InvalidDepth(Section):
     """Zeros where the surface is seen at a grazing angle, and at random pixels."""
 
     enabled: bool = True
@@ -99,14 +95,14 @@ class InvalidDepth(_Section):
     dropout_fraction: float = Field(0.002, ge=0, lt=1)
 
 
-class DepthQuantisation(_Section):
+class DepthQuantisation(Section):
     """Round depth to multiples of depth_scale_m, as a uint16 depth image stores it."""
 
     enabled: bool = True
     depth_scale_m: float = Field(0.001, gt=0)
 
 
-class DepthBias(_Section):
+class DepthBias(Section):
     """Systematic depth error: z_measured = scale * z + offset_m."""
 
     enabled: bool = False
@@ -114,7 +110,7 @@ class DepthBias(_Section):
     offset_m: float = 0.0
 
 
-class RGBNoise(_Section):
+class RGBNoise(Section):
     """Gaussian blur, then additive Gaussian noise (8-bit grey levels)."""
 
     enabled: bool = True
@@ -122,7 +118,7 @@ class RGBNoise(_Section):
     blur_sigma_px: float = Field(0.5, ge=0)
 
 
-class RobotPoseNoise(_Section):
+class RobotPoseNoise(Section):
     """Noise on the reported flange pose (the true pose is kept apart).
 
     Reported T_base_flange: translation + N(0, translation_sigma_m^2) per base
@@ -135,7 +131,7 @@ class RobotPoseNoise(_Section):
     rotation_sigma_deg: float = Field(0.01, ge=0)
 
 
-class NoiseSettings(_Section):
+class NoiseSettings(Section):
     depth: DepthNoise = DepthNoise()
     invalid_depth: InvalidDepth = InvalidDepth()
     depth_quantisation: DepthQuantisation = DepthQuantisation()
@@ -151,7 +147,7 @@ class NoiseSettings(_Section):
         )
 
 
-class TrajectorySettings(_Section):
+class TrajectorySettings(Section):
     """Where the arm goes.
 
     kind 'rotation-rich' (default): views of the board centre tilted 15-35
@@ -173,7 +169,7 @@ class TrajectorySettings(_Section):
         return self
 
 
-class Scenario(_Section):
+class Scenario(Section):
     robot: Literal["ur5", "ur5e"] = "ur5"
     seed: int = Field(0, ge=0)
     camera: CameraSettings = CameraSettings()
@@ -186,8 +182,6 @@ class Scenario(_Section):
 
     def board_definition(self) -> BoardDefinition:
         """A board name in models/boards/, or a JSON path relative to the scenario."""
-        from sim.scene import find_board
-
         return find_board(self.board.definition, Path(self.base_dir))
 
     def waypoint_file(self) -> Path | None:
@@ -213,28 +207,3 @@ def scenario_from_dict(data: dict, source: str = "scenario", base_dir: Path = Pa
         return Scenario(**data, base_dir=str(base_dir))
     except ValidationError as exc:
         raise ScenarioError(validation_problems(exc, source)) from None
-
-
-def read_toml(path: Path, error: type[Exception], kind: str) -> dict:
-    """The table in the TOML file at path; raises ``error`` naming the file when it is
-    missing, a folder, or not valid TOML. kind: what the file is, in words ("scenario")."""
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise error(f"{path}: {kind} file not found") from None
-    except IsADirectoryError:
-        raise error(f"{path}: is a folder, expected a {kind} TOML file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise error(f"{path}: not valid TOML ({exc})") from None
-
-
-def validation_problems(exc: ValidationError, source: str) -> str:
-    """One line per bad key of a TOML file read into a pydantic model: the file, the dotted
-    key, what is wrong and the value given."""
-    problems = []
-    for err in exc.errors():
-        key = ".".join(str(part) for part in err["loc"]) or "(top level)"
-        message = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-        got = "" if err["type"] in ("extra_forbidden", "missing") else f" (got {err['input']!r})"
-        problems.append(f"{source}: key '{key}': {message}{got}")
-    return "\n".join(problems)

@@ -15,17 +15,16 @@ the image content, and OpenCV's pixel origin is the centre of the first pixel.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from estimator.board import BoardDefinition, board_image, load_board
-from estimator.camera import CameraIntrinsics
-from estimator.geometry import invert, make_transform, xyz_quat_from_transform
-from sim.kinematics import ROBOTS, URKinematics
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.kinematics import ROBOTS, URKinematics
+from estimator.geometry.transforms import invert, make_transform, xyz_quat_from_transform
+from estimator.io.models import models_dir
+from estimator.targets.board import BoardDefinition, board_image
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 CAMERA_NAME = "hec_camera"
 DEPTH_SENSOR_NAME = "hec_depth_sensor"
 BOARD_GEOM = "board_sheet"
@@ -38,22 +37,6 @@ PAPER_REFLECTANCE = 0.85
 INK_REFLECTANCE = 0.06
 # Robot and camera geoms collide with the cell (contype 1), not with each other.
 _ROBOT_CONTYPE = 1
-
-
-def models_dir() -> Path:
-    """The models/ folder, in a source checkout or an installed wheel."""
-    if MODELS_DIR.is_dir():
-        return MODELS_DIR
-    from importlib.resources import files
-
-    # hec_models is a namespace package: ask for a file in it to get a real folder.
-    return Path(str(files("hec_models").joinpath("cell.xml"))).parent
-
-
-def find_board(name: str, base_dir: Path = Path(".")) -> BoardDefinition:
-    """A board named in models/boards/ (without .json), else a JSON path relative to base_dir."""
-    named = models_dir() / "boards" / f"{name}.json"
-    return load_board(named if named.is_file() else base_dir / name)
 
 
 @dataclass(frozen=True)

@@ -9,12 +9,18 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from estimator.dataset import DatasetWriter
-from sim.cell import SimCell, WaypointRejected
+from estimator.geometry.waypoints import (
+    Waypoint,
+    WaypointRejected,
+    paper_waypoints,
+    read_waypoint_file,
+    rotation_rich_waypoints,
+)
+from estimator.io.dataset import DatasetWriter
+from sim.cell import SimCell
 from sim.noise import depth_noise_model, robot_pose_noise_model
 from sim.preview import write_preview
 from sim.scenario import Scenario
-from sim.trajectory import Waypoint, paper_waypoints, read_waypoint_file, rotation_rich_waypoints
 
 
 class SimulationError(RuntimeError):

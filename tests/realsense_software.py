@@ -16,9 +16,9 @@ import time
 import numpy as np
 import pyrealsense2 as rs
 
-from estimator.camera import CameraIntrinsics
-from estimator.dataset import encode_depth
-from estimator.geometry import make_transform
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.transforms import make_transform
+from estimator.io.dataset import encode_depth
 from sim.cell import SimCell
 from sim.noise import apply_depth_models, apply_rgb_models
 from sim.scenario import CameraSettings, Scenario

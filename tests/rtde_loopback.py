@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim.kinematics import URKinematics, forward, jacobian, solve_ik
+from estimator.geometry.kinematics import URKinematics, forward, jacobian, solve_ik
 
 if TYPE_CHECKING:
     from sim.cell import SimCell

@@ -8,14 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS, opencv_calibrate
-from estimator.calibration import MethodOptions
-from estimator.geometry import pose_error
-from estimator.observations import FrameObservations
-from estimator.problem import CalibrationInputError, CalibrationProblem, build_problem
-from estimator.synthetic import SyntheticNoise, synthetic_observations
+from estimator.geometry.transforms import pose_error
+from estimator.geometry.waypoints import rotation_rich_waypoints
+from estimator.observe.observations import FrameObservations
+from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from estimator.solve.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS, opencv_calibrate
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.problem import CalibrationInputError, CalibrationProblem, build_problem
 from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
-from sim.trajectory import rotation_rich_waypoints
 
 DISTANCE_FACTORS = (0.85, 1.0, 1.2)
 # Largest errors of T_flange_cam (mm, degrees) allowed with the default noise. Measured over 20 seeds
@@ -31,7 +31,7 @@ def three_distance_views(
 ) -> list[FrameObservations]:
     """The default views taken in turn at three distances from the board centre. Unlike the default
     trajectory (one distance), the motions are not all rotations about one point, which andreff and li
-    need (see estimator.baselines)."""
+    need (see estimator.solve.baselines)."""
     waypoints = [
         rotation_rich_waypoints(T_BASE_BOARD, T_flange_cam, f * SCENARIO.trajectory.distance_m)
         for f in DISTANCE_FACTORS

@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from estimator.methods import METHODS
-from experiments.bench_estimators import CASES, main
+from estimator.solve.methods import METHODS
+from experiments.bench.estimators import CASES, main
 
 
 def test_benchmark_reports_every_method_case_and_check(tmp_path: Path) -> None:

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.dataset import load_dataset
-from estimator.geometry import pose_error
-from estimator.methods import METHODS
-from estimator.observations import CACHE_FILE, load_observations, save_observations
-from estimator.problem import CalibrationInputError
-from experiments.calibration import write_json
+from estimator.geometry.transforms import pose_error
+from estimator.io.dataset import load_dataset
+from estimator.observe.observations import CACHE_FILE, load_observations, save_observations
+from estimator.solve.methods import METHODS
+from estimator.solve.problem import CalibrationInputError
+from experiments.calibrate.report import write_json
 from experiments.cli import main
 from tests.hec_cli import run_hec
 

@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimator.baselines import JOINT_LINEAR_METHODS
-from estimator.calibration import MethodOptions, Prior
-from estimator.geometry import make_transform, pose_error
-from estimator.lie import pose_minus, so3_exp
-from estimator.measurement_model import HandEyeState
-from estimator.methods import METHODS, run_method
-from estimator.observability import observability
-from estimator.problem import CalibrationInputError, RobotPoseNoise, build_problem
-from estimator.synthetic import SyntheticNoise, synthetic_observations
+from estimator.geometry.lie import pose_minus, so3_exp
+from estimator.geometry.transforms import make_transform, pose_error
+from estimator.geometry.waypoints import look_at_board
+from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from estimator.solve.baselines import JOINT_LINEAR_METHODS
+from estimator.solve.calibration import MethodOptions, Prior
+from estimator.solve.measurement_model import HandEyeState
+from estimator.solve.methods import METHODS, run_method
+from estimator.solve.observability import observability
+from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem
 from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
-from sim.trajectory import look_at_board
 
 MODEL_METHODS = ("ekf", "iekf", "batch")
 OPENCV_COMPARED = ("opencv-tsai", "opencv-park", "opencv-horaud", "opencv-daniilidis", "opencv-shah")

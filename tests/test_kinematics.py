@@ -6,11 +6,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from estimator.board import load_board
-from estimator.camera import CameraIntrinsics
-from estimator.geometry import invert, make_transform, pose_error
-from sim.kinematics import ROBOTS, forward, jacobian, solve_ik
-from sim.scene import ARM_PREFIX, build_cell, models_dir
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.kinematics import ROBOTS, forward, jacobian, solve_ik
+from estimator.geometry.transforms import invert, make_transform, pose_error
+from estimator.io.models import models_dir
+from estimator.targets.board import load_board
+from sim.scene import ARM_PREFIX, build_cell
 
 
 @pytest.mark.parametrize("robot", sorted(ROBOTS))

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimator.camera import CameraIntrinsics
-from estimator.geometry import transform_points
-from estimator.lie import (
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.lie import (
     pose_minus,
     pose_plus,
     so3_exp,
@@ -15,8 +14,9 @@ from estimator.lie import (
     so3_right_jacobian,
     so3_right_jacobian_inverse,
 )
-from estimator.measurement_model import HandEyeState, predict_frame
-from estimator.problem import build_problem
+from estimator.geometry.transforms import transform_points
+from estimator.solve.measurement_model import HandEyeState, predict_frame
+from estimator.solve.problem import build_problem
 from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 STEP = 1e-6

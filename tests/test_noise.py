@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimator.camera import CameraIntrinsics
-from estimator.dataset import decode_depth, encode_depth
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import decode_depth, encode_depth
 from sim.noise import apply_depth_models, apply_rgb_models, depth_sigma, perturb_flange_pose
 from sim.scenario import (
     DepthBias,

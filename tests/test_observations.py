@@ -6,11 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.camera import CameraIntrinsics
-from estimator.dataset import Frame, load_dataset
-from estimator.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
-from estimator.detect import DetectorSettings, QRDetector
-from estimator.observations import (
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import Frame, load_dataset
+from estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
+from estimator.observe.observations import (
     ObservationCacheError,
     dataset_depth_noise,
     load_observations,
@@ -18,6 +17,7 @@ from estimator.observations import (
     observe_frame,
     save_observations,
 )
+from estimator.targets.qr import DetectorSettings, QRDetector
 from experiments.cli import main
 
 K = CameraIntrinsics(640, 480, 617.0, 617.0, 319.5, 239.5)

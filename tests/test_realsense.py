@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.calibration import MethodOptions
-from estimator.dataset import DatasetWriter, Frame, load_dataset
-from estimator.detect import DetectorSettings
-from estimator.geometry import invert, pose_error
-from estimator.methods import run_method
-from estimator.problem import build_problem, dataset_robot_noise
+from estimator.geometry.transforms import invert, pose_error
+from estimator.io.dataset import DatasetWriter, Frame, load_dataset
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.methods import run_method
+from estimator.solve.problem import build_problem, dataset_robot_noise
+from estimator.targets.qr import DetectorSettings
 from experiments.detection import detect_and_cache
 from hardware.realsense import CameraError, RealSenseCamera, RealSenseSettings
 from sim.cell import SimCell

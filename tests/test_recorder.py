@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.camera import CameraIntrinsics
-from estimator.dataset import Capture, DatasetError, DatasetRecorder, Frame, load_dataset
-from sim.scene import find_board
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import Capture, DatasetError, DatasetRecorder, Frame, load_dataset
+from estimator.targets.board import find_board
 
 INTRINSICS = CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
 

@@ -1,5 +1,5 @@
 """The regression check: the whole pipeline (render, detect, ekf) on the baseline's 10-view scenario and
-seed must stay within the bounds of experiments/regression_baseline.json; the rule itself fails a result
+seed must stay within the bounds of experiments/regress/baseline.json; the rule itself fails a result
 much worse than the recorded figure, or beyond the loose bound; a bad baseline file gets a clear error.
 
 The pipeline runs three times here (about 1.3 s each): the check itself, and `hec regress` twice.
@@ -16,19 +16,15 @@ from pathlib import Path
 
 import pytest
 
-from experiments.regress import (
+from experiments.regress.baseline_file import (
     DEFAULT_BASELINE,
     Baseline,
     BaselineError,
     Measurement,
     Threshold,
-    compare,
-    explain,
     load_baseline,
-    main,
-    measure,
-    trial_scenario,
 )
+from experiments.regress.command import compare, explain, main, measure, trial_scenario
 
 
 @pytest.fixture(scope="module")

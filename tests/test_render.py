@@ -13,9 +13,9 @@ import pytest
 import zxingcpp
 from scipy.ndimage import map_coordinates
 
-from estimator.board import BoardDefinition, board_image
-from estimator.camera import project_points
-from estimator.geometry import invert
+from estimator.geometry.camera import project_points
+from estimator.geometry.transforms import invert
+from estimator.targets.board import BoardDefinition, board_image
 from sim.cell import SimCell
 from sim.noise import depth_sigma
 from sim.scenario import CameraSettings, Scenario

@@ -11,15 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.calibration import MethodOptions
-from estimator.geometry import pose_error
-from estimator.lie import pose_minus
-from estimator.measurement_model import HandEyeState
-from estimator.methods import run_method
-from estimator.observability import observability
-from estimator.problem import CalibrationInputError, build_problem
-from estimator.synthetic import SyntheticNoise
-from experiments import report
+from estimator.geometry.lie import pose_minus
+from estimator.geometry.transforms import pose_error
+from estimator.observe.synthetic import SyntheticNoise
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.measurement_model import HandEyeState
+from estimator.solve.methods import run_method
+from estimator.solve.observability import observability
+from estimator.solve.problem import CalibrationInputError, build_problem
+from experiments.sweep import report, summary
+from experiments.sweep import rows as row_schema
 from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 # opencv-andreff finds no solution on the default views (one distance to the board): real failed rows.
@@ -93,8 +94,8 @@ def make_rows() -> list[dict]:
 
 def write_rows(out_dir: Path, rows: list[dict]) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
-    columns = [*report.ROW_COLUMNS[:4], "pixel_sigma_px", "mount", *report.ROW_COLUMNS[4:]]
-    with (out_dir / report.ROWS_FILE).open("w", newline="") as f:
+    columns = [*summary.ROW_COLUMNS[:4], "pixel_sigma_px", "mount", *summary.ROW_COLUMNS[4:]]
+    with (out_dir / row_schema.ROWS_FILE).open("w", newline="") as f:
         writer = csv.DictWriter(f, columns)
         writer.writeheader()
         writer.writerows(rows)
@@ -114,7 +115,7 @@ def built(rows: list[dict], tmp_path_factory: pytest.TempPathFactory) -> report.
         "config": {"seed": 3, "methods": list(METHODS)},
         "software": {"numpy": "9.9"},
     }
-    (out_dir / report.META_FILE).write_text(json.dumps(sweep))
+    (out_dir / row_schema.META_FILE).write_text(json.dumps(sweep))
     return report.build_report(out_dir)
 
 
@@ -126,12 +127,12 @@ def _run(argv: list[str]) -> int:
 
 
 def test_rows_read_back_typed(rows: list[dict], built: report.Report) -> None:
-    read = report.load_rows(built.html.parent)
+    read = summary.load_report_rows(built.html.parent)
     assert len(read) == len(rows)
     for mine, theirs in zip(rows, read, strict=True):
         assert theirs["seed"] == mine["seed"] and isinstance(theirs["pixel_sigma_px"], float)
         assert theirs["mount"] == "random"
-        for column in report.FLOAT_COLUMNS:
+        for column in row_schema.FLOAT_COLUMNS:
             assert theirs[column] == pytest.approx(mine[column], rel=1e-12, nan_ok=True)
 
 
@@ -228,10 +229,10 @@ def test_missing_or_empty_folder_is_a_clear_error(tmp_path: Path, capsys: pytest
 
 def test_bad_value_names_file_line_and_column(rows: list[dict], tmp_path: Path) -> None:
     write_rows(tmp_path, [rows[0], {**rows[1], "error_rotation_deg": "abc"}])
-    with pytest.raises(report.ReportError, match=r"rows.csv, line 3, column 'error_rotation_deg'"):
+    with pytest.raises(summary.ReportError, match=r"rows.csv, line 3, column 'error_rotation_deg'"):
         report.build_report(tmp_path)
     write_rows(tmp_path, [{**rows[0], "status": "done"}])
-    with pytest.raises(report.ReportError, match=r"column 'status' must be one of ok, failed"):
+    with pytest.raises(summary.ReportError, match=r"column 'status' must be one of ok, failed"):
         report.build_report(tmp_path)
 
 
@@ -249,7 +250,7 @@ def test_convergence_ends_at_the_ekf_estimate_with_its_covariance() -> None:
     X = random_mount(rng)
     observations = scene(X, rng, SyntheticNoise())
     problem = build_problem(observations, BOARD, INTRINSICS, SyntheticNoise().robot)
-    conv = report.convergence(problem, X, MethodOptions())
+    conv = summary.convergence(problem, X, MethodOptions())
     result = run_method("ekf", problem, MethodOptions(), observations)
     assert conv.method == "ekf" and conv.error.shape == conv.sigma.shape == (len(conv.waypoints), 6)
     assert conv.waypoints[-1] == len(problem.frames) and np.all(np.diff(conv.waypoints) == 1)

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.kinematics import forward
+from estimator.geometry.kinematics import forward
 from tests.rtde_loopback import (
     RUNTIME_PAUSED,
     RUNTIME_PLAYING,

@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.calibration import MethodOptions, Prior
-from estimator.geometry import pose_error
-from estimator.lie import pose_minus, pose_plus
-from estimator.problem import build_problem
-from estimator.seed_ekf import (
+from estimator.geometry.lie import pose_minus, pose_plus
+from estimator.geometry.transforms import pose_error
+from estimator.solve.calibration import MethodOptions, Prior
+from estimator.solve.problem import build_problem
+from estimator.solve.seed_ekf import (
     SeedEkfState,
     add_landmarks,
     filter_steps,

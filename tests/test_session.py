@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.dataset import load_dataset
-from estimator.geometry import pose_error, xyz_quat_from_transform
-from experiments import record
-from experiments.calibration import CalibrateSettings, calibrate_dataset
+from estimator.geometry.transforms import pose_error, xyz_quat_from_transform
+from estimator.io.dataset import load_dataset
+from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
 from experiments.cli import build_parser, main
-from experiments.session_plot import PLOT_FILE
+from experiments.session import record
+from experiments.session.plot import PLOT_FILE
 from sim.cell import SimCell
 from sim.scenario import Scenario, load_scenario
 from sim.simulate import scenario_waypoints, simulate

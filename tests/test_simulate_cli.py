@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from estimator.dataset import DatasetError, load_dataset
-from estimator.geometry import pose_error, transform_from_xyz_quat
+from estimator.geometry.transforms import pose_error, transform_from_xyz_quat
+from estimator.geometry.waypoints import Waypoint, WaypointFileError, read_waypoint_file, write_waypoint_file
+from estimator.io.dataset import DatasetError, load_dataset
+from estimator.io.models import models_dir
 from experiments.cli import main
 from sim.cell import SimCell
 from sim.scenario import Scenario, load_scenario
-from sim.scene import models_dir
 from sim.simulate import scenario_waypoints, simulate
-from sim.trajectory import Waypoint, WaypointFileError, read_waypoint_file, write_waypoint_file
 from tests.hec_cli import run_hec
 
 REPO = Path(__file__).resolve().parent.parent

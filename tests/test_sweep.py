@@ -10,18 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from experiments.sweep import (
-    ROWS_FILE,
-    SweepError,
-    add_parser,
-    load_rows,
-    rerun_trial,
-    row_columns,
-    run,
-    run_sweep,
-    same_rows,
-)
-from experiments.sweep_config import SweepConfigError, load_config
+from experiments.sweep.command import add_parser, run
+from experiments.sweep.config import SweepConfigError, load_config
+from experiments.sweep.rows import ROWS_FILE, SweepError, load_rows, row_columns
+from experiments.sweep.runner import rerun_trial, run_sweep, same_rows
 
 SMALL = """
 fidelity = "measurements"

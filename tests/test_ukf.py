@@ -8,17 +8,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.calibration import MethodOptions
-from estimator.filters import initial_covariance
-from estimator.filters import update as ekf_update
-from estimator.geometry import transform_points
-from estimator.initialise import initial_state
-from estimator.lie import pose_minus
-from estimator.measurement_model import HandEyeState
-from estimator.observability import observability
-from estimator.problem import RobotPoseNoise, build_problem
-from estimator.synthetic import SyntheticNoise
-from estimator.ukf import ukf, update_frame
+from estimator.geometry.lie import pose_minus
+from estimator.geometry.transforms import transform_points
+from estimator.observe.synthetic import SyntheticNoise
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.filters import initial_covariance
+from estimator.solve.filters import update as ekf_update
+from estimator.solve.initialise import initial_state
+from estimator.solve.measurement_model import HandEyeState
+from estimator.solve.observability import observability
+from estimator.solve.problem import RobotPoseNoise, build_problem
+from estimator.solve.ukf import ukf, update_frame
 from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 # Measured over 3 x 30 random mounts (default noise, board model): RMS error / CRB 0.95-1.02 for

@@ -10,10 +10,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from estimator.geometry import make_transform, pose_error
+from estimator.geometry.kinematics import forward
+from estimator.geometry.transforms import make_transform, pose_error
 from hardware.ur_robot import MotionSettings, RobotError, SafetyLimits, URRobot
 from sim.cell import SimCell
-from sim.kinematics import forward
 from sim.scenario import load_scenario
 from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard

@@ -1,0 +1,87 @@
+"""Small perturbations of rotations and rigid transforms.
+
+The one perturbation convention every estimator, covariance and Jacobian uses:
+a pose T = (R, t) is perturbed by delta = (dt, dtheta), (6,), as
+
+    R' = R @ Exp(dtheta)      (dtheta in the pose's own, local frame, radians)
+    t' = t + dt               (dt in the parent frame, metres)
+
+so for T_flange_cam the translation part is in the flange frame and the rotation
+part about the camera's axes. This is also how the simulator perturbs reported
+flange poses (sim.noise.perturb_flange_pose).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from estimator.geometry.transforms import make_transform
+
+SMALL_ANGLE = 1e-8
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(3,) -> (3, 3) matrix with skew(v) @ w = cross(v, w)."""
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def skew_rows(v: np.ndarray) -> np.ndarray:
+    """(P, 3) -> (P, 3, 3) cross-product matrices."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,), radians -> (3, 3) rotation (Rodrigues)."""
+    angle = float(np.linalg.norm(w))
+    W = skew(w)
+    if angle < SMALL_ANGLE:
+        return np.eye(3) + W + 0.5 * W @ W
+    return np.eye(3) + np.sin(angle) / angle * W + (1.0 - np.cos(angle)) / angle**2 * W @ W
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation -> rotation vector (3,), radians, angle in [0, pi]."""
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def so3_right_jacobian(w: np.ndarray) -> np.ndarray:
+    """(3, 3) right Jacobian of SO(3): Exp(w + e) ~= Exp(w) @ Exp(Jr(w) @ e) for small e."""
+    angle = float(np.linalg.norm(w))
+    W = skew(w)
+    if angle < SMALL_ANGLE:
+        return np.eye(3) - 0.5 * W + W @ W / 6.0
+    return np.eye(3) - (1.0 - np.cos(angle)) / angle**2 * W + (angle - np.sin(angle)) / angle**3 * W @ W
+
+
+def so3_right_jacobian_inverse(w: np.ndarray) -> np.ndarray:
+    """(3, 3) inverse of so3_right_jacobian(w)."""
+    angle = float(np.linalg.norm(w))
+    W = skew(w)
+    if angle < SMALL_ANGLE:
+        return np.eye(3) + 0.5 * W + W @ W / 12.0
+    return (
+        np.eye(3) + 0.5 * W + (1.0 / angle**2 - (1.0 + np.cos(angle)) / (2.0 * angle * np.sin(angle))) * W @ W
+    )
+
+
+def pose_plus(T: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """(4, 4) pose perturbed by delta = (dt, dtheta), (6,): (R Exp(dtheta), t + dt)."""
+    return make_transform(T[:3, :3] @ so3_exp(delta[3:]), T[:3, 3] + delta[:3])
+
+
+def pose_minus(T: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
+    """The delta (6,) with pose_plus(T_ref, delta) == T."""
+    return np.concatenate([T[:3, 3] - T_ref[:3, 3], so3_log(T_ref[:3, :3].T @ T[:3, :3])])
+
+
+def pose_plus_jacobian(delta: np.ndarray) -> np.ndarray:
+    """(6, 6) d(local perturbation at pose_plus(T, delta)) / d(delta): block diag(I, Jr(dtheta))."""
+    J = np.eye(6)
+    J[3:, 3:] = so3_right_jacobian(delta[3:])
+    return J

@@ -1,0 +1,188 @@
+"""Waypoints: the paper's translation-only set, the default rotation-rich set, or a CSV file.
+
+A waypoint is a target flange pose T_base_flange (metres) or a joint vector
+(radians). Generated trajectories aim the camera at the board centre; they
+use the scenario's mount to turn camera poses into flange poses.
+
+Waypoint CSV (header required, one waypoint a row, ``#`` starts a comment line):
+either ``x_m,y_m,z_m,qw,qx,qy,qz`` (T_base_flange, quaternion w first) or
+``q1_rad,q2_rad,q3_rad,q4_rad,q5_rad,q6_rad`` (joint angles); an optional
+``label`` column names the waypoint.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator.geometry.transforms import (
+    invert,
+    make_transform,
+    rotation_about,
+    transform_from_xyz_quat,
+    xyz_quat_from_transform,
+)
+
+POSE_COLUMNS = ("x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
+JOINT_COLUMNS = tuple(f"q{i}_rad" for i in range(1, 7))
+
+# (tilt, azimuth of the tilt axis in the board plane, roll about the optical axis), degrees.
+# Tilts about the board's x axis (azimuth 0/180) and y axis (90/270) and in between,
+# plus rolls: rotations about three non-parallel axes, 15-35 degrees each.
+ROTATION_RICH_VIEWS_DEG = (
+    (0, 0, 0),
+    (20, 0, 0),
+    (20, 90, 0),
+    (20, 180, 0),
+    (20, 270, 0),
+    (32, 45, 0),
+    (32, 135, 0),
+    (32, 225, 0),
+    (32, 315, 0),
+    (0, 0, 20),
+    (0, 0, -20),
+    (25, 0, 15),
+    (25, 180, -15),
+    (25, 90, -15),
+    (25, 270, 15),
+    (15, 60, 10),
+    (15, 240, -10),
+)
+# The paper's set: one orientation, the camera moved 30-40 mm along each base axis.
+PAPER_OFFSETS_M = tuple(
+    [(0.0, 0.0, 0.0)]
+    + [(sx * 0.03, sy * 0.03, sz * 0.03) for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+    + [tuple(s * 0.04 * (k == axis) for k in range(3)) for axis in range(3) for s in (-1, 1)]
+)
+
+
+class WaypointFileError(ValueError):
+    """A waypoint file cannot be read."""
+
+
+class WaypointRejected(Exception):
+    """A waypoint cannot be used; ``reason`` says why in plain words."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """A target: flange pose (4, 4) in the base frame, or joint angles (6,), radians."""
+
+    index: int
+    label: str
+    T_base_flange: np.ndarray | None = None
+    joints: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class PlannedMove:
+    """A waypoint with the joint target (6,), radians, that reaches it from the previous
+    move, or why it cannot be used (then joints is None)."""
+
+    waypoint: Waypoint
+    joints: np.ndarray | None
+    problem: str | None = None
+
+
+# Head-on camera orientation over the board: image x along board x, looking down board -z.
+_R_BOARD_CAM_HEAD_ON = np.diag([1.0, -1.0, -1.0])
+
+
+def look_at_board(tilt_deg: float, azimuth_deg: float, roll_deg: float, distance_m: float) -> np.ndarray:
+    """T_board_cam (4, 4) of a camera aimed at the board origin from distance_m.
+
+    The head-on view is tilted by tilt_deg about the in-plane axis at azimuth_deg
+    from board x, then rolled by roll_deg about the optical axis.
+    """
+    az = np.radians(azimuth_deg)
+    R_tilt = rotation_about("z", az) @ rotation_about("x", np.radians(tilt_deg)) @ rotation_about("z", -az)
+    R_board_cam = R_tilt @ _R_BOARD_CAM_HEAD_ON @ rotation_about("z", np.radians(roll_deg))
+    return make_transform(R_board_cam, -distance_m * R_board_cam[:, 2])
+
+
+def rotation_rich_waypoints(
+    T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float
+) -> list[Waypoint]:
+    """The default trajectory: 17 views of the board centre with tilts and rolls."""
+    T_cam_flange = invert(T_flange_cam)
+    return [
+        Waypoint(
+            i,
+            f"tilt {tilt} az {az} roll {roll}",
+            T_base_flange=T_base_board @ look_at_board(tilt, az, roll, distance_m) @ T_cam_flange,
+        )
+        for i, (tilt, az, roll) in enumerate(ROTATION_RICH_VIEWS_DEG)
+    ]
+
+
+def paper_waypoints(T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float) -> list[Waypoint]:
+    """The paper's trajectory: head-on, translated 30-40 mm in base x, y and z (15 poses)."""
+    T_base_flange_0 = T_base_board @ look_at_board(0, 0, 0, distance_m) @ invert(T_flange_cam)
+    waypoints = []
+    for i, offset in enumerate(PAPER_OFFSETS_M):
+        T = T_base_flange_0.copy()
+        T[:3, 3] += offset
+        label = "centre" if i == 0 else "offset {:+.0f} {:+.0f} {:+.0f} mm".format(*(1000 * np.array(offset)))
+        waypoints.append(Waypoint(i, label, T_base_flange=T))
+    return waypoints
+
+
+def read_waypoint_file(path: str | Path) -> list[Waypoint]:
+    """Waypoints from a CSV file (format in the module docstring)."""
+    path = Path(path)
+    try:
+        lines = [line for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
+    except FileNotFoundError:
+        raise WaypointFileError(f"{path}: waypoint file not found") from None
+    reader = csv.DictReader(lines)
+    rows = list(reader)
+    header = set(reader.fieldnames or ())
+    if set(POSE_COLUMNS) <= header:
+        columns = POSE_COLUMNS
+    elif set(JOINT_COLUMNS) <= header:
+        columns = JOINT_COLUMNS
+    else:
+        raise WaypointFileError(
+            f"{path}: header needs the columns {','.join(POSE_COLUMNS)} or {','.join(JOINT_COLUMNS)}"
+        )
+    waypoints = []
+    for i, row in enumerate(rows):
+        try:
+            values = np.array([float(row[c]) for c in columns])
+        except (TypeError, ValueError):
+            raise WaypointFileError(
+                f"{path}: waypoint {i} (data row {i + 1}): every value in {columns} must be a number"
+            ) from None
+        if not np.all(np.isfinite(values)):
+            raise WaypointFileError(f"{path}: waypoint {i}: values must be finite")
+        label = (row.get("label") or f"waypoint {i}").strip()
+        if columns == JOINT_COLUMNS:
+            waypoints.append(Waypoint(i, label, joints=values))
+            continue
+        quat = values[3:]
+        norm = np.linalg.norm(quat)
+        if abs(norm - 1.0) > 1e-3:
+            raise WaypointFileError(
+                f"{path}: waypoint {i}: quaternion (qw, qx, qy, qz) has norm {norm:.4f}, expected 1"
+            )
+        waypoints.append(Waypoint(i, label, T_base_flange=transform_from_xyz_quat(values[:3], quat / norm)))
+    if not waypoints:
+        raise WaypointFileError(f"{path}: no waypoints")
+    return waypoints
+
+
+def write_waypoint_file(path: str | Path, waypoints: list[Waypoint]) -> None:
+    """Write flange-pose waypoints in the CSV format read_waypoint_file reads."""
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow((*POSE_COLUMNS, "label"))
+        for wp in waypoints:
+            t, q = xyz_quat_from_transform(wp.T_base_flange)
+            writer.writerow([repr(float(v)) for v in (*t, *q)] + [wp.label])

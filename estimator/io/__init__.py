@@ -1,0 +1,1 @@
+"""Files: the dataset format, JSON reading, atomic writes, the shipped models/ folder."""

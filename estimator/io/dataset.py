@@ -1,0 +1,491 @@
+"""Frames and the on-disk dataset format (hec-dataset, version 1).
+
+One format serves the simulator, the real cell and imports. A dataset is a
+folder a person can open without this project::
+
+    dataset.json        format, version, source, frame count, camera intrinsics,
+                        depth scale, the depth noise model ('depth_noise', see
+                        estimator.observe.depth.DepthNoiseModel; optional), the noise of the
+                        reported flange poses ('robot_pose_noise': translation_sigma_m,
+                        rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional)
+                        and (simulation) seed, scenario, skipped waypoints
+    board.json          the board definition (hec-board v1)
+    frames.csv          one row a frame: frame, time_s, rgb, depth, the reported
+                        T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad;
+                        a recorded session adds waypoint (the waypoint's index) and
+                        depth_samples (its image, or empty)
+    rgb/NNNNNN.png      colour, 8-bit RGB
+    depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
+    depth_samples/NNNNNN.png  optional, 8-bit: valid depth samples averaged per pixel
+    ground_truth.json   simulation only: T_flange_cam, T_base_board, T_world_base
+                        and per frame the true T_base_flange and joints
+    detections.json     optional cache written by `hec detect` (estimator.observe.observations)
+    overlay/NNNNNN.png  optional detection pictures written by `hec detect --overlay`
+
+Depth is aligned to the colour image and shares its intrinsics. A rendered
+dataset (DatasetWriter) is written into a temporary sibling folder and renamed
+into place when it is complete, so a failed run never leaves a folder that looks
+finished. A recorded session (DatasetRecorder) is written in place frame by
+frame, so an interruption keeps every frame captured before it; dataset.json
+'recording' says whether it is 'in progress', 'interrupted' or 'complete'.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
+from estimator.io.files import write_atomic
+from estimator.io.jsonfile import read_json_object
+from estimator.targets.board import BoardDefinition, BoardDefinitionError, load_board
+
+UINT16_MAX = 65535
+FORMAT = "hec-dataset"
+VERSION = 1
+FRAME_COLUMNS = (
+    "frame",
+    "time_s",
+    "rgb",
+    "depth",
+    "x_m",
+    "y_m",
+    "z_m",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    *(f"q{i}_rad" for i in range(1, 7)),
+)
+SESSION_COLUMNS = ("waypoint", "depth_samples")
+
+
+class DatasetError(ValueError):
+    """A dataset folder is missing a file or has a bad field."""
+
+
+@dataclass
+class Frame:
+    """One RGB-D capture with the robot's report.
+
+    rgb: (H, W, 3) uint8, RGB order. depth_m: (H, W) float32 metres along the
+    optical axis, aligned to rgb, 0 = no depth. T_base_flange: (4, 4) reported
+    flange pose. joints: (6,) reported joint angles, radians. time_s: capture time.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: CameraIntrinsics
+    T_base_flange: np.ndarray
+    joints: np.ndarray
+    time_s: float
+
+
+@dataclass
+class Capture:
+    """One view as a cell returns it: the frame; depth_samples (H, W) uint8, the valid depth
+    samples averaged per pixel (a camera burst; None when not averaged); and, in simulation,
+    the true T_base_flange (4, 4) and joints (6,)."""
+
+    frame: Frame
+    depth_samples: np.ndarray | None = None
+    true_T_base_flange: np.ndarray | None = None
+    true_joints: np.ndarray | None = None
+
+
+@dataclass
+class GroundTruth:
+    """Simulation truth: the mount, the board pose and per-frame true flange poses."""
+
+    T_flange_cam: np.ndarray
+    T_base_board: np.ndarray
+    T_world_base: np.ndarray
+    T_base_flange: list[np.ndarray] = field(default_factory=list)
+    joints: list[np.ndarray] = field(default_factory=list)
+
+
+def _matrix(T: np.ndarray) -> list[list[float]]:
+    return [[float(v) for v in row] for row in T]
+
+
+def _dump_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(data, indent=2) + "\n")
+
+
+class DatasetWriter:
+    """Write a dataset; use as a context manager. Nothing appears at ``out_dir``
+    until ``finish`` succeeds. An existing ``out_dir`` is replaced only with force."""
+
+    def __init__(
+        self,
+        out_dir: str | Path,
+        intrinsics: CameraIntrinsics,
+        board: BoardDefinition,
+        depth_scale_m: float,
+        source: str,
+        force: bool = False,
+    ) -> None:
+        self.out_dir = Path(out_dir)
+        if self.out_dir.exists() and not force:
+            raise FileExistsError(f"{self.out_dir} already exists; use --force to replace it")
+        self.intrinsics = intrinsics
+        self.board = board
+        self.depth_scale_m = depth_scale_m
+        self.source = source
+        self.force = force
+        self.tmp_dir = self.out_dir.parent / f".{self.out_dir.name}.partial-{os.getpid()}"
+        if self.tmp_dir.exists():
+            shutil.rmtree(self.tmp_dir)
+        (self.tmp_dir / "rgb").mkdir(parents=True)
+        (self.tmp_dir / "depth").mkdir()
+        self.rows: list[list[str]] = []
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, exc_type: object, *_: object) -> None:
+        if self.tmp_dir.exists():
+            shutil.rmtree(self.tmp_dir)
+
+    def add_frame(self, frame: Frame) -> int:
+        """Write one frame's images now and keep its row; returns the frame number."""
+        index = len(self.rows)
+        self.rows.append(_write_frame_files(self.tmp_dir, index, frame, self.intrinsics, self.depth_scale_m))
+        return index
+
+    def finish(self, ground_truth: GroundTruth | None = None, extra: dict | None = None) -> Path:
+        """Write the tables and metadata, then move the dataset into place."""
+        with open(self.tmp_dir / "frames.csv", "w", newline="") as f:
+            writer = csv.writer(f, lineterminator="\n")
+            writer.writerow(FRAME_COLUMNS)
+            writer.writerows(self.rows)
+        _dump_json(self.tmp_dir / "board.json", self.board.to_dict())
+        if ground_truth is not None:
+            _dump_json(self.tmp_dir / "ground_truth.json", _ground_truth_dict(ground_truth))
+        meta = _metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
+        _dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
+        if self.out_dir.exists():
+            trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
+            self.out_dir.rename(trash)
+            self.tmp_dir.rename(self.out_dir)
+            shutil.rmtree(trash)
+        else:
+            self.tmp_dir.rename(self.out_dir)
+        return self.out_dir
+
+
+class DatasetRecorder:
+    """Write a recorded session straight into ``out_dir``, frame by frame: images first,
+    then the frames.csv row (flushed to disk), then dataset.json with the new count, so an
+    interruption loses nothing captured before it. ``resume=True`` reopens such a folder
+    (same camera intrinsics, depth scale, board and source, or DatasetError) and appends.
+
+    extra: more dataset.json fields; ground_truth (simulation): the cell's truth, its
+    per-frame lists filled by add_frame.
+    """
+
+    def __init__(
+        self,
+        out_dir: str | Path,
+        intrinsics: CameraIntrinsics,
+        board: BoardDefinition,
+        depth_scale_m: float,
+        source: str,
+        extra: dict | None = None,
+        ground_truth: GroundTruth | None = None,
+        resume: bool = False,
+    ) -> None:
+        self.root = Path(out_dir)
+        self.intrinsics, self.board, self.depth_scale_m = intrinsics, board, depth_scale_m
+        self.source, self.extra = source, dict(extra or {})
+        self.ground_truth = ground_truth
+        self.rows: list[dict] = []
+        if resume:
+            self._reopen()
+        else:
+            self._create()
+
+    def _create(self) -> None:
+        if self.root.exists():
+            raise FileExistsError(
+                f"{self.root} already exists; add --resume to continue that session, or choose another --out"
+            )
+        for sub in ("rgb", "depth", "depth_samples"):
+            (self.root / sub).mkdir(parents=True)
+        _dump_json(self.root / "board.json", self.board.to_dict())
+        with open(self.root / "frames.csv", "w", newline="") as f:
+            csv.writer(f, lineterminator="\n").writerow((*FRAME_COLUMNS, *SESSION_COLUMNS))
+        self._write_metadata("in progress")
+
+    def _reopen(self) -> None:
+        """Check that the folder holds a session of this camera and board, drop a frames.csv
+        line cut short by the interruption, and read the frames recorded so far."""
+        meta_path = self.root / "dataset.json"
+        meta = read_json_object(meta_path, DatasetError, "missing: nothing to resume here")
+        checks = {
+            "camera": (meta.get("camera"), self.intrinsics.to_dict()),
+            "depth_scale_m": (meta.get("depth_scale_m"), self.depth_scale_m),
+            "source": (meta.get("source"), self.source),
+        }
+        for key, (recorded, now) in checks.items():
+            if recorded != now:
+                raise DatasetError(f"{meta_path}: cannot resume, '{key}' was {recorded!r} and is now {now!r}")
+        if load_board(self.root / "board.json").to_dict() != self.board.to_dict():
+            raise DatasetError(f"{self.root / 'board.json'}: cannot resume, the board is another one")
+        frames_path = self.root / "frames.csv"
+        text = frames_path.read_text()
+        if not text.endswith("\n"):
+            text = text[: text.rfind("\n") + 1]
+            frames_path.write_text(text)
+        with open(frames_path, newline="") as f:
+            header = next(csv.reader(f))
+        if tuple(header) != (*FRAME_COLUMNS, *SESSION_COLUMNS):
+            raise DatasetError(f"{frames_path}: not written by a recorded session; cannot resume it")
+        self.rows = _read_frames(frames_path)
+        if self.ground_truth is not None and self.rows:
+            truth = _read_ground_truth(self.root / "ground_truth.json")
+            self.ground_truth.T_base_flange[:] = truth.T_base_flange[: len(self.rows)]
+            self.ground_truth.joints[:] = truth.joints[: len(self.rows)]
+        self._write_metadata("in progress")
+
+    @property
+    def recorded_waypoints(self) -> set[int]:
+        return {row["waypoint"] for row in self.rows}
+
+    def add_frame(self, capture: Capture, waypoint: int) -> int:
+        """Write one captured view of waypoint (its index) now; returns its frame number."""
+        index = len(self.rows)
+        row = _write_frame_files(self.root, index, capture.frame, self.intrinsics, self.depth_scale_m)
+        samples_name = ""
+        if capture.depth_samples is not None:
+            samples_name = f"depth_samples/{index:06d}.png"
+            _write_png(self.root / samples_name, np.asarray(capture.depth_samples, dtype=np.uint8))
+        if self.ground_truth is not None:
+            if capture.true_T_base_flange is None or capture.true_joints is None:
+                raise DatasetError("a simulated session's capture must carry its true pose and joints")
+            self.ground_truth.T_base_flange.append(capture.true_T_base_flange)
+            self.ground_truth.joints.append(capture.true_joints)
+            write_atomic(self.root / "ground_truth.json", json.dumps(_ground_truth_dict(self.ground_truth)))
+        with open(self.root / "frames.csv", "a", newline="") as f:
+            csv.writer(f, lineterminator="\n").writerow([*row, str(waypoint), samples_name])
+            f.flush()
+            os.fsync(f.fileno())
+        self.rows.append({"frame": index, "waypoint": waypoint})
+        self._write_metadata("in progress")
+        return index
+
+    def finish(self, state: str, extra: dict | None = None) -> Path:
+        """Write dataset.json once more with the session's end state ('complete' or
+        'interrupted') and any more fields."""
+        self.extra |= extra or {}
+        self._write_metadata(state)
+        return self.root
+
+    def _write_metadata(self, state: str) -> None:
+        truth = self.ground_truth if self.rows else None  # its file is written with the first frame
+        meta = _metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
+        text = json.dumps(meta | self.extra | {"recording": state}, indent=2) + "\n"
+        write_atomic(self.root / "dataset.json", text)
+
+
+def _write_frame_files(
+    root: Path, index: int, frame: Frame, intrinsics: CameraIntrinsics, depth_scale_m: float
+) -> list[str]:
+    """Check the frame against the intrinsics, write its images under root and return its
+    frames.csv row (the FRAME_COLUMNS)."""
+    k = intrinsics
+    if frame.rgb.shape != (k.height, k.width, 3) or frame.rgb.dtype != np.uint8:
+        raise DatasetError(
+            f"rgb must be ({k.height}, {k.width}, 3) uint8, got {frame.rgb.shape} {frame.rgb.dtype}"
+        )
+    if frame.depth_m.shape != (k.height, k.width):
+        raise DatasetError(f"depth must be ({k.height}, {k.width}), got {frame.depth_m.shape}")
+    rgb_name, depth_name = f"rgb/{index:06d}.png", f"depth/{index:06d}.png"
+    _write_png(root / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
+    _write_png(root / depth_name, encode_depth(frame.depth_m, depth_scale_m))
+    t, q = xyz_quat_from_transform(frame.T_base_flange)
+    values = [*t, *q, *frame.joints]
+    return [str(index), repr(float(frame.time_s)), rgb_name, depth_name, *(repr(float(v)) for v in values)]
+
+
+def _ground_truth_dict(truth: GroundTruth) -> dict:
+    return {
+        "T_flange_cam": _matrix(truth.T_flange_cam),
+        "T_base_board": _matrix(truth.T_base_board),
+        "T_world_base": _matrix(truth.T_world_base),
+        "frames": [
+            {"frame": i, "T_base_flange": _matrix(T), "joints_rad": [float(v) for v in q]}
+            for i, (T, q) in enumerate(zip(truth.T_base_flange, truth.joints, strict=True))
+        ],
+    }
+
+
+def _metadata(
+    intrinsics: CameraIntrinsics,
+    depth_scale_m: float,
+    source: str,
+    frame_count: int,
+    ground_truth: GroundTruth | None,
+) -> dict:
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "source": source,
+        "frame_count": frame_count,
+        "camera": intrinsics.to_dict(),
+        "depth_scale_m": depth_scale_m,
+        "depth": "aligned to the colour image, along the optical axis; 0 = no depth",
+        "flange_pose": "reported T_base_flange: tool0 in the base frame; metres, quaternion w x y z",
+        "board_file": "board.json",
+        "frames_file": "frames.csv",
+        "ground_truth_file": "ground_truth.json" if ground_truth is not None else None,
+    }
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:
+        raise DatasetError(f"{path}: PNG encoding failed")
+    path.write_bytes(encoded.tobytes())
+
+
+def encode_depth(depth_m: np.ndarray, depth_scale_m: float) -> np.ndarray:
+    """Depth in metres (any shape) -> uint16 steps of depth_scale_m, round(depth / scale), as
+    stored in a 16-bit PNG. 0, negative, non-finite and out-of-range (> 65535 steps) depths -> 0."""
+    if not depth_scale_m > 0.0:
+        raise ValueError(f"depth_scale_m must be positive, got {depth_scale_m}")
+    d = np.asarray(depth_m, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        steps = np.rint(d / depth_scale_m)
+        ok = np.isfinite(steps) & (steps > 0) & (steps <= UINT16_MAX)
+    return np.where(ok, steps, 0).astype(np.uint16)
+
+
+def decode_depth(depth_u16: np.ndarray, depth_scale_m: float) -> np.ndarray:
+    """uint16 depth steps (any shape) -> float32 metres, value * depth_scale_m; 0 stays 0 (invalid)."""
+    if not depth_scale_m > 0.0:
+        raise ValueError(f"depth_scale_m must be positive, got {depth_scale_m}")
+    return (np.asarray(depth_u16).astype(np.float64) * depth_scale_m).astype(np.float32)
+
+
+@dataclass
+class Dataset:
+    """A dataset opened for reading; images load on demand with ``frame(i)``."""
+
+    root: Path
+    metadata: dict
+    intrinsics: CameraIntrinsics
+    board: BoardDefinition
+    depth_scale_m: float
+    rows: list[dict]
+    ground_truth: GroundTruth | None
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def frame(self, i: int) -> Frame:
+        row = self.rows[i]
+        rgb = _read_image(self.root / row["rgb"], cv2.IMREAD_COLOR)
+        depth = _read_image(self.root / row["depth"], cv2.IMREAD_UNCHANGED)
+        if depth.dtype != np.uint16 or depth.ndim != 2:
+            raise DatasetError(f"{self.root / row['depth']}: expected a 16-bit single-channel PNG")
+        return Frame(
+            rgb=cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB),
+            depth_m=decode_depth(depth, self.depth_scale_m),
+            intrinsics=self.intrinsics,
+            T_base_flange=row["T_base_flange"],
+            joints=row["joints"],
+            time_s=row["time_s"],
+        )
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    if not path.is_file():
+        raise DatasetError(f"{path}: image file missing")
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise DatasetError(f"{path}: not a readable PNG image")
+    return image
+
+
+def load_dataset(path: str | Path) -> Dataset:
+    """Open and validate a dataset folder; errors name the file and the field."""
+    root = Path(path)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: no such dataset folder")
+    meta_path = root / "dataset.json"
+    meta = read_json_object(meta_path, DatasetError)
+    if meta.get("format") != FORMAT:
+        raise DatasetError(f"{meta_path}: field 'format' should be {FORMAT!r}, got {meta.get('format')!r}")
+    if meta.get("version") != VERSION:
+        raise DatasetError(f"{meta_path}: field 'version' should be {VERSION}, got {meta.get('version')!r}")
+    try:
+        intrinsics = CameraIntrinsics.from_dict(meta["camera"])
+        depth_scale = float(meta["depth_scale_m"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(
+            f"{meta_path}: field 'camera' or 'depth_scale_m' missing or malformed ({exc})"
+        ) from None
+    try:
+        board = load_board(root / meta.get("board_file", "board.json"))
+    except BoardDefinitionError as exc:
+        raise DatasetError(str(exc)) from None
+    rows = _read_frames(root / meta.get("frames_file", "frames.csv"))
+    if len(rows) != meta.get("frame_count"):
+        raise DatasetError(
+            f"{meta_path}: 'frame_count' is {meta.get('frame_count')} but frames.csv has {len(rows)} rows"
+        )
+    truth = None
+    if meta.get("ground_truth_file"):
+        truth = _read_ground_truth(root / meta["ground_truth_file"])
+    return Dataset(root, meta, intrinsics, board, depth_scale, rows, truth)
+
+
+def _read_ground_truth(path: Path) -> GroundTruth:
+    gt = read_json_object(path, DatasetError)
+    try:
+        return GroundTruth(
+            np.array(gt["T_flange_cam"]),
+            np.array(gt["T_base_board"]),
+            np.array(gt["T_world_base"]),
+            [np.array(f["T_base_flange"]) for f in gt["frames"]],
+            [np.array(f["joints_rad"]) for f in gt["frames"]],
+        )
+    except (KeyError, TypeError) as exc:
+        raise DatasetError(f"{path}: missing field {exc}") from None
+
+
+def _read_frames(path: Path) -> list[dict]:
+    if not path.is_file():
+        raise DatasetError(f"{path}: file missing")
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in FRAME_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise DatasetError(f"{path}: missing columns {missing}")
+        rows = []
+        for line, raw in enumerate(reader, start=2):
+            try:
+                values = [float(raw[c]) for c in FRAME_COLUMNS[4:]]
+                rows.append(
+                    {
+                        "frame": int(raw["frame"]),
+                        "time_s": float(raw["time_s"]),
+                        "rgb": raw["rgb"],
+                        "depth": raw["depth"],
+                        "T_base_flange": transform_from_xyz_quat(np.array(values[:3]), np.array(values[3:7])),
+                        "joints": np.array(values[7:]),
+                        "waypoint": int(raw["waypoint"]) if raw.get("waypoint") else None,
+                    }
+                )
+            except (TypeError, ValueError) as exc:
+                raise DatasetError(f"{path}: line {line}: bad value ({exc})") from None
+    return rows

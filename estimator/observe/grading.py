@@ -1,0 +1,135 @@
+"""Observations graded against simulated ground truth: detection rate, errors and normalised errors.
+
+The true camera pose of frame i is T_base_cam = T_base_flange_true[i] @ T_flange_cam,
+so the true board in the camera is T_cam_board = T_base_cam^-1 @ T_base_board.
+Normalised errors are e^T C^-1 e / dim, whose mean is 1 when the covariances C are
+honest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from estimator.geometry.camera import CameraIntrinsics, project_points
+from estimator.geometry.transforms import invert, transform_points
+from estimator.io.dataset import GroundTruth
+from estimator.observe.observations import FrameObservations
+from estimator.targets.board import BoardDefinition
+from estimator.targets.qr_fit import fits_in_image
+
+# A detection this far (pixels, any corner) from its marker's true corners has the wrong ID.
+WRONG_ID_PX = 5.0
+# Quiet-zone modules that must be in the image for a marker to count as fully visible.
+VISIBLE_QUIET_MODULES = 2
+
+
+@dataclass
+class MeasurementErrors:
+    """Pooled over frames. Arrays have one row per graded marker (points: centre, corners 0..3)."""
+
+    visible: int = 0
+    found_visible: int = 0
+    wrong_id: int = 0
+    corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (4, 2) each
+    raw_corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (4, 2) each
+    corner_nees: list[float] = field(default_factory=list)  # per corner, dim 2
+    center_errors_px: list[np.ndarray] = field(default_factory=list)  # (2,) each
+    center_px_nees: list[float] = field(default_factory=list)
+    point_errors_m: list[np.ndarray] = field(default_factory=list)  # (5, 3) each
+    point_nees: list[np.ndarray] = field(default_factory=list)  # (5,) each, dim 3
+
+    @property
+    def detection_rate(self) -> float:
+        return self.found_visible / self.visible if self.visible else float("nan")
+
+    @staticmethod
+    def _rms(errors: list[np.ndarray]) -> float:
+        if not errors:
+            return float("nan")
+        e = np.concatenate([np.reshape(x, (-1, 2)) for x in errors])
+        return float(np.sqrt(np.mean(np.sum(e * e, axis=1))))
+
+    @property
+    def corner_rms_px(self) -> float:
+        """RMS of the corners' 2D pixel error."""
+        return self._rms(self.corner_errors_px)
+
+    @property
+    def raw_corner_rms_px(self) -> float:
+        """The same for the decoders' corners before refinement."""
+        return self._rms(self.raw_corner_errors_px)
+
+    def summary(self) -> dict:
+        points = np.array(self.point_errors_m) if self.point_errors_m else np.zeros((0, 5, 3))
+        nees = np.array(self.point_nees) if self.point_nees else np.zeros((0, 5))
+        return {
+            "visible_markers": self.visible,
+            "detected_visible": self.found_visible,
+            "detection_rate": self.detection_rate,
+            "wrong_id": self.wrong_id,
+            "corner_rms_px": self.corner_rms_px,
+            "raw_corner_rms_px": self.raw_corner_rms_px,
+            "corner_nees": float(np.mean(self.corner_nees)) if self.corner_nees else float("nan"),
+            "center_px_nees": float(np.mean(self.center_px_nees)) if self.center_px_nees else float("nan"),
+            "center_rms_mm": 1000.0 * float(np.sqrt(np.mean(np.sum(points[:, 0] ** 2, axis=1))))
+            if len(points)
+            else float("nan"),
+            "center_point_nees": float(np.mean(nees[:, 0])) if len(nees) else float("nan"),
+            "point_nees": float(np.mean(nees)) if len(nees) else float("nan"),
+        }
+
+
+def true_T_cam_board(truth: GroundTruth, frame: int) -> np.ndarray:
+    """(4, 4) the board in the true camera frame of one frame."""
+    return invert(truth.T_base_flange[frame] @ truth.T_flange_cam) @ truth.T_base_board
+
+
+def grade_observations(
+    observations: list[FrameObservations],
+    truth: GroundTruth,
+    board: BoardDefinition,
+    intrinsics: CameraIntrinsics,
+) -> MeasurementErrors:
+    """Compare every frame's observations with the truth (pinhole projection, no distortion)."""
+    errors = MeasurementErrors()
+    for obs in observations:
+        T_cam_board = true_T_cam_board(truth, obs.frame)
+        for marker_id in board.marker_ids:
+            true_corners = project_points(T_cam_board, board.marker_corners(marker_id), intrinsics.K)
+            facing = (invert(T_cam_board) @ np.array([0.0, 0.0, 0.0, 1.0]))[2] > 0.0
+            visible = facing and fits_in_image(
+                true_corners, VISIBLE_QUIET_MODULES / board.modules, (intrinsics.height, intrinsics.width)
+            )
+            errors.visible += int(visible)
+            marker = obs.marker(marker_id)
+            if marker is None:
+                continue
+            corner_error = marker.corners_px - true_corners
+            if np.abs(corner_error).max() > WRONG_ID_PX:
+                errors.wrong_id += 1
+                continue
+            errors.found_visible += int(visible)
+            errors.corner_errors_px.append(corner_error)
+            errors.raw_corner_errors_px.append(marker.raw_corners_px - true_corners)
+            for k in range(4):
+                cov = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+                errors.corner_nees.append(
+                    float(corner_error[k] @ np.linalg.solve(cov, corner_error[k])) / 2.0
+                )
+            true_center = project_points(T_cam_board, board.marker_center(marker_id)[None], intrinsics.K)[0]
+            e = marker.center_px - true_center
+            errors.center_errors_px.append(e)
+            errors.center_px_nees.append(float(e @ np.linalg.solve(marker.center_cov, e)) / 2.0)
+            if marker.points_cam is None:
+                continue
+            true_points = transform_points(
+                T_cam_board, np.vstack([board.marker_center(marker_id), board.marker_corners(marker_id)])
+            )
+            d = marker.points_cam - true_points
+            errors.point_errors_m.append(d)
+            errors.point_nees.append(
+                np.einsum("ki,ki->k", d, np.linalg.solve(marker.points_cov, d[:, :, None])[:, :, 0]) / 3.0
+            )
+    return errors

@@ -1,0 +1,182 @@
+"""The hand-eye measurement model shared by ekf, iekf, ukf, batch and the Cramer-Rao bound.
+
+A board corner c (board frame) seen in frame i:
+
+    p_base = T_base_board @ c                 (board mode), or a landmark (landmark mode)
+    p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
+    pixel  = project(p_cam)                   (K and OpenCV distortion)
+    depth  = depth_scale * p_cam.z
+
+State perturbations follow estimator.geometry.lie: (dt, dtheta) for T_flange_cam and
+T_base_board, (dx, dy, dz) for a landmark, d(scale) for the depth scale, in this
+order in the state vector.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.geometry.camera import distort_normalized
+from estimator.geometry.lie import pose_minus, pose_plus, pose_plus_jacobian, skew_rows
+from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+
+
+@dataclass(frozen=True)
+class HandEyeState:
+    """T_flange_cam (4, 4), and either T_base_board (4, 4) or landmarks_base (L, 3) (corner
+    4k + c of problem.marker_ids[k], metres, base frame); depth_scale None = fixed at 1."""
+
+    T_flange_cam: np.ndarray
+    T_base_board: np.ndarray | None = None
+    landmarks_base: np.ndarray | None = None
+    depth_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.T_base_board is None) == (self.landmarks_base is None):
+            raise ValueError("a state holds exactly one of T_base_board and landmarks_base")
+
+    @property
+    def map_dim(self) -> int:
+        return 6 if self.T_base_board is not None else self.landmarks_base.size
+
+    @property
+    def dim(self) -> int:
+        return 6 + self.map_dim + (self.depth_scale is not None)
+
+    def plus(self, delta: np.ndarray) -> HandEyeState:
+        """The state moved by a perturbation (dim,)."""
+        m = 6 + self.map_dim
+        return HandEyeState(
+            pose_plus(self.T_flange_cam, delta[:6]),
+            None if self.T_base_board is None else pose_plus(self.T_base_board, delta[6:12]),
+            None if self.landmarks_base is None else self.landmarks_base + delta[6:m].reshape(-1, 3),
+            None if self.depth_scale is None else self.depth_scale + float(delta[m]),
+        )
+
+    def minus(self, reference: HandEyeState) -> np.ndarray:
+        """The perturbation (dim,) with reference.plus(delta) == self."""
+        parts = [pose_minus(self.T_flange_cam, reference.T_flange_cam)]
+        if self.T_base_board is not None:
+            parts.append(pose_minus(self.T_base_board, reference.T_base_board))
+        else:
+            parts.append((self.landmarks_base - reference.landmarks_base).reshape(-1))
+        if self.depth_scale is not None:
+            parts.append([self.depth_scale - reference.depth_scale])
+        return np.concatenate(parts)
+
+    def plus_jacobian(self, delta: np.ndarray) -> np.ndarray:
+        """(dim, dim) d(local perturbation at self.plus(delta)) / d(delta)."""
+        J = np.eye(self.dim)
+        J[:6, :6] = pose_plus_jacobian(delta[:6])
+        if self.T_base_board is not None:
+            J[6:12, 6:12] = pose_plus_jacobian(delta[6:12])
+        return J
+
+
+@dataclass
+class FramePrediction:
+    """Whitened residual W (measured - predicted), (m,), and the Jacobians of the whitened
+    prediction W h with respect to the state perturbation (m, dim) and the flange pose
+    perturbation delta (m, 6). pixels: (P, 2) predicted corners; depth_m: (P,) predicted
+    depth; points_cam: (P, 3), all in marker order."""
+
+    residual: np.ndarray
+    J_state: np.ndarray
+    J_flange: np.ndarray
+    pixels: np.ndarray
+    depth_m: np.ndarray
+    points_cam: np.ndarray
+
+
+def _projection(p_cam: np.ndarray, problem: CalibrationProblem) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) camera points -> (P, 2) pixels and (P, 2, 3) d(pixel)/d(p_cam)."""
+    k = problem.intrinsics
+    z = p_cam[:, 2]
+    xy = p_cam[:, :2] / z[:, None]
+    d_xy = np.zeros((len(z), 2, 3))
+    d_xy[:, 0, 0] = d_xy[:, 1, 1] = 1.0 / z
+    d_xy[:, :, 2] = -xy / z[:, None]
+    if any(k.dist):
+        xy, d_dist = distort_normalized(xy, k.dist)
+        d_xy = d_dist @ d_xy
+    f = np.array([k.fx, k.fy])
+    return xy * f + np.array([k.cx, k.cy]), d_xy * f[None, :, None]
+
+
+def predict_frame(
+    problem: CalibrationProblem,
+    state: HandEyeState,
+    frame: FrameMeasurements,
+    delta_flange: np.ndarray | None = None,
+    jacobians: bool = True,
+) -> FramePrediction:
+    """Predict one frame's markers and compare with the measurements (see the module doc)."""
+    T_base_flange = (
+        frame.T_base_flange if delta_flange is None else pose_plus(frame.T_base_flange, delta_flange)
+    )
+    R_F, t_F = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    R_X, t_X = state.T_flange_cam[:3, :3], state.T_flange_cam[:3, 3]
+    markers = frame.markers
+    if state.T_base_board is not None:
+        R_B, t_B = state.T_base_board[:3, :3], state.T_base_board[:3, 3]
+        corners_board = np.concatenate([m.corners_board for m in markers])
+        p_base = corners_board @ R_B.T + t_B
+    else:
+        rows = np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
+        p_base = state.landmarks_base[rows]
+    p_flange = (p_base - t_F) @ R_F
+    p_cam = (p_flange - t_X) @ R_X
+    pixels, d_pix = _projection(p_cam, problem)
+    scale = 1.0 if state.depth_scale is None else state.depth_scale
+    depth = scale * p_cam[:, 2]
+
+    residual_parts = []
+    for k, m in enumerate(markers):
+        predicted = pixels[4 * k : 4 * k + 4].reshape(-1)
+        if m.depth_m is not None:
+            predicted = np.concatenate([predicted, depth[4 * k : 4 * k + 4]])
+        residual_parts.append(m.whitening @ (m.measured - predicted))
+    residual = np.concatenate(residual_parts)
+    if not jacobians:
+        return FramePrediction(residual, np.empty((0, 0)), np.empty((0, 0)), pixels, depth, p_cam)
+
+    P = len(p_cam)
+    RXt = R_X.T
+    RXt_RFt = RXt @ R_F.T
+    # d p_cam / d (perturbations), each (P, 3, k)
+    d_cam_d_X = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
+    d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
+    # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
+    d_meas_d_cam = np.concatenate([d_pix, scale * np.broadcast_to([0.0, 0.0, 1.0], (P, 1, 3))], axis=1)
+
+    n = state.dim
+    J_state_points = np.zeros((P, 3, n))
+    J_state_points[:, :, :6] = d_meas_d_cam @ d_cam_d_X
+    d_meas_d_base = d_meas_d_cam @ RXt_RFt
+    if state.T_base_board is not None:
+        d_base_d_B = np.concatenate(
+            [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ skew_rows(corners_board)], axis=2
+        )
+        J_state_points[:, :, 6:12] = d_meas_d_base @ d_base_d_B
+    else:
+        for j, row in enumerate(rows):
+            J_state_points[j, :, 6 + 3 * row : 9 + 3 * row] = d_meas_d_base[j]
+    if state.depth_scale is not None:
+        J_state_points[:, 2, -1] = p_cam[:, 2]
+    J_flange_points = d_meas_d_cam @ d_cam_d_F
+
+    J_state_rows, J_flange_rows = [], []
+    for k, m in enumerate(markers):
+        sl = slice(4 * k, 4 * k + 4)
+        rows_state = [J_state_points[sl, :2].reshape(8, n)]
+        rows_flange = [J_flange_points[sl, :2].reshape(8, 6)]
+        if m.depth_m is not None:
+            rows_state.append(J_state_points[sl, 2])
+            rows_flange.append(J_flange_points[sl, 2])
+        J_state_rows.append(m.whitening @ np.concatenate(rows_state))
+        J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
+    return FramePrediction(
+        residual, np.concatenate(J_state_rows), np.concatenate(J_flange_rows), pixels, depth, p_cam
+    )

@@ -1,0 +1,206 @@
+"""The calibration problem every method solves: validated, whitened measurements.
+
+Input is what the detector gives (estimator.observe.observations.FrameObservations): per
+frame the reported flange pose T_base_flange and, per marker, the corner pixels
+with their (8, 8) covariance and the depth at the corners with its covariance.
+A marker's measurement vector is (u0, v0, ..., u3, v3, z0, ..., z3) (the depths
+only when the marker has depth). Its covariance can be singular (the four corner
+depths come from one plane: rank 3), so each marker carries a whitening matrix W
+with W @ cov @ W.T = I over the covariance's non-null space; estimators work with
+whitened residuals W @ (measured - predicted), which are N(0, I) at the truth.
+
+The reported flange poses are measurements too (errors in variables): the true
+pose is pose_plus(reported, delta), delta ~ N(0, RobotPoseNoise.covariance()),
+in the convention of estimator.geometry.lie.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import Dataset, DatasetError
+from estimator.observe.observations import FrameObservations
+from estimator.targets.board import BoardDefinition
+
+MIN_FRAMES = 3
+# Eigenvalues below this fraction of the largest are the covariance's null space.
+NULL_EIGENVALUE_FRACTION = 1e-9
+
+
+class CalibrationInputError(ValueError):
+    """The observations cannot be calibrated from; the message names what is missing."""
+
+
+@dataclass(frozen=True)
+class RobotPoseNoise:
+    """Noise of the reported flange pose, in the convention of estimator.geometry.lie:
+    translation sigma per base axis (metres), rotation sigma per flange axis (radians)."""
+
+    translation_sigma_m: float = 1e-4
+    rotation_sigma_rad: float = float(np.radians(0.01))
+
+    def __post_init__(self) -> None:
+        if not (self.translation_sigma_m >= 0 and self.rotation_sigma_rad >= 0):
+            raise ValueError("robot pose noise sigmas must be >= 0")
+
+    def to_dict(self) -> dict:
+        return {
+            "translation_sigma_m": self.translation_sigma_m,
+            "rotation_sigma_rad": self.rotation_sigma_rad,
+        }
+
+    def covariance(self) -> np.ndarray:
+        """(6, 6) diagonal covariance of delta = (dt, dtheta)."""
+        return np.diag([self.translation_sigma_m**2] * 3 + [self.rotation_sigma_rad**2] * 3)
+
+    @property
+    def is_zero(self) -> bool:
+        return self.translation_sigma_m == 0.0 and self.rotation_sigma_rad == 0.0
+
+
+def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
+    """The dataset's robot pose noise (dataset.json 'robot_pose_noise'), else RobotPoseNoise()."""
+    spec = dataset.metadata.get("robot_pose_noise")
+    if spec is None:
+        return RobotPoseNoise()
+    try:
+        return RobotPoseNoise(float(spec["translation_sigma_m"]), float(spec["rotation_sigma_rad"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(
+            f"{dataset.root / 'dataset.json'}: field 'robot_pose_noise' is malformed ({exc})"
+        ) from None
+
+
+@dataclass
+class MarkerMeasurement:
+    """One marker in one frame. corners_board: (4, 3) metres in the board frame.
+    corners_px: (4, 2). depth_m: (4,) at the corners, or None. whitening: (m, 8) or (m, 12)."""
+
+    marker_id: int
+    corners_board: np.ndarray
+    corners_px: np.ndarray
+    depth_m: np.ndarray | None
+    whitening: np.ndarray
+
+    @property
+    def measured(self) -> np.ndarray:
+        """(8,) or (12,): corner pixels, then corner depths."""
+        z = self.corners_px.reshape(-1)
+        return z if self.depth_m is None else np.concatenate([z, self.depth_m])
+
+
+@dataclass
+class FrameMeasurements:
+    """The usable markers of one frame. T_base_flange: (4, 4) as the robot reported it."""
+
+    frame: int
+    T_base_flange: np.ndarray
+    markers: list[MarkerMeasurement]
+
+
+@dataclass
+class CalibrationProblem:
+    """Everything an estimator needs. marker_ids: the observed board markers, sorted; the
+    landmark of corner c of marker marker_ids[k] has index 4 * k + c. rejected: one line
+    per frame or marker left out, with the reason."""
+
+    intrinsics: CameraIntrinsics
+    board: BoardDefinition
+    frames: list[FrameMeasurements]
+    robot_noise: RobotPoseNoise
+    marker_ids: list[int]
+    rejected: list[str] = field(default_factory=list)
+
+    @property
+    def observation_count(self) -> int:
+        """Markers used, summed over frames."""
+        return sum(len(f.markers) for f in self.frames)
+
+    def marker_index(self, marker_id: int) -> int:
+        return self.marker_ids.index(marker_id)
+
+
+def whitening_matrix(cov: np.ndarray, what: str) -> np.ndarray:
+    """(m, n) W with W @ cov @ W.T = I_m over the non-null space of a (n, n) covariance."""
+    if not np.all(np.isfinite(cov)):
+        raise CalibrationInputError(f"{what}: covariance has NaN or infinite entries")
+    sym = 0.5 * (cov + cov.T)
+    values, vectors = np.linalg.eigh(sym)
+    if values[-1] <= 0.0 or values[0] < -1e-6 * values[-1]:
+        raise CalibrationInputError(f"{what}: covariance is not positive semi-definite")
+    keep = values > NULL_EIGENVALUE_FRACTION * values[-1]
+    return (vectors[:, keep] / np.sqrt(values[keep])).T
+
+
+def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise CalibrationInputError(f"{what}: expected a (4, 4) pose, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise CalibrationInputError(f"{what}: pose has NaN or infinite entries")
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise CalibrationInputError(f"{what}: rotation part is not a rotation matrix")
+    return T
+
+
+def build_problem(
+    observations: list[FrameObservations],
+    board: BoardDefinition,
+    intrinsics: CameraIntrinsics,
+    robot_noise: RobotPoseNoise | None = None,
+    use_depth: bool = True,
+) -> CalibrationProblem:
+    """Validate observations and turn them into whitened measurements.
+
+    Frames with a problem or without markers are left out (listed in ``rejected``).
+    Raises CalibrationInputError for NaNs, markers that are not on the board, or
+    fewer than MIN_FRAMES usable frames.
+    """
+    board_ids = set(board.marker_ids)
+    foreign = sorted({m.marker_id for o in observations for m in o.markers} - board_ids)
+    if foreign:
+        raise CalibrationInputError(
+            f"the board definition '{board.name}' does not match the observations: marker IDs "
+            f"{foreign} were observed but the board has IDs {sorted(board_ids)}"
+        )
+    frames, rejected = [], []
+    for obs in observations:
+        if obs.problem is not None or not obs.markers:
+            rejected.append(f"frame {obs.frame}: {obs.problem or 'no marker observed'}")
+            continue
+        T = _check_pose(obs.T_base_flange, f"frame {obs.frame} T_base_flange")
+        markers = [_marker(obs.frame, m, board, use_depth) for m in obs.markers]
+        frames.append(FrameMeasurements(obs.frame, T, markers))
+    if len(frames) < MIN_FRAMES:
+        raise CalibrationInputError(
+            f"too few frames: {len(frames)} usable of {len(observations)}, need at least {MIN_FRAMES}"
+            + (f" ({'; '.join(rejected[:3])})" if rejected else "")
+        )
+    marker_ids = sorted({m.marker_id for f in frames for m in f.markers})
+    return CalibrationProblem(
+        intrinsics, board, frames, robot_noise or RobotPoseNoise(), marker_ids, rejected
+    )
+
+
+def _marker(frame: int, m, board: BoardDefinition, use_depth: bool) -> MarkerMeasurement:
+    what = f"frame {frame} marker {m.marker_id}"
+    corners = np.asarray(m.corners_px, dtype=np.float64)
+    if corners.shape != (4, 2) or not np.all(np.isfinite(corners)):
+        raise CalibrationInputError(f"{what}: corners_px must be (4, 2) finite pixels")
+    cov = np.asarray(m.corners_cov, dtype=np.float64)
+    depth = None
+    if use_depth and m.depth_m is not None:
+        depth = np.asarray(m.depth_m, dtype=np.float64)[1:5]
+        if not np.all(np.isfinite(depth)) or np.any(depth <= 0):
+            raise CalibrationInputError(f"{what}: depth_m must be finite and positive")
+        full = np.zeros((12, 12))
+        full[:8, :8] = cov
+        full[8:, 8:] = np.asarray(m.depth_cov, dtype=np.float64)[1:5, 1:5]
+        cov = full
+    return MarkerMeasurement(
+        m.marker_id, board.marker_corners(m.marker_id), corners, depth, whitening_matrix(cov, what)
+    )

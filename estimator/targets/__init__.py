@@ -1,0 +1,1 @@
+"""Calibration targets: the board definition and one detector module per target kind."""

@@ -1,0 +1,286 @@
+"""`hec calibrate`: estimate T_flange_cam from a dataset with one method or all of them, and report
+(the report's text and JSON forms are in experiments.calibrate.report)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from estimator.io.dataset import Dataset, load_dataset
+from estimator.io.jsonfile import read_json_object
+from estimator.observe.observations import FrameObservations
+from estimator.solve.calibration import MethodOptions, Prior
+from estimator.solve.methods import DEFAULT_METHOD, METHODS, run_method
+from estimator.solve.problem import (
+    CalibrationInputError,
+    CalibrationProblem,
+    RobotPoseNoise,
+    build_problem,
+    dataset_robot_noise,
+)
+from experiments.calibrate.report import (
+    MethodFailure,
+    Result,
+    calibration_to_dict,
+    check_json_path,
+    format_calibration,
+    format_comparison,
+    result_to_dict,
+    write_json,
+)
+from experiments.detection import cached_or_detected
+
+ALL_METHODS = "all"
+ROTATION_TOLERANCE = 1e-5  # max |R^T R - I| entry accepted in a prior file
+
+
+class PriorFileError(ValueError):
+    """A --prior file is missing, not JSON, or has a bad field."""
+
+
+@dataclass(frozen=True)
+class CalibrateSettings:
+    """What `hec calibrate` was asked for. method: a name in METHODS or 'all'.
+    robot_sigma_mm / robot_sigma_deg: override the dataset's robot pose noise when given."""
+
+    method: str = DEFAULT_METHOD
+    map_model: str = "board"
+    estimate_depth_scale: bool = False
+    use_depth: bool = True
+    prior_file: Path | None = None
+    robot_sigma_mm: float | None = None
+    robot_sigma_deg: float | None = None
+
+    @property
+    def methods(self) -> list[str]:
+        return list(METHODS) if self.method == ALL_METHODS else [self.method]
+
+
+# ---------------------------------------------------------------- inputs
+
+
+def _matrix_field(data: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    try:
+        value = np.array(data[key], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PriorFileError(
+            f"{path}: field '{key}' must be a {shape[0]}x{shape[1]} list of numbers"
+        ) from None
+    if value.shape != shape or not np.all(np.isfinite(value)):
+        raise PriorFileError(
+            f"{path}: field '{key}' must be a {shape[0]}x{shape[1]} list of finite numbers, "
+            f"got shape {value.shape}"
+        )
+    return value
+
+
+def load_prior(path: Path) -> Prior:
+    """A Prior from a JSON object with 'T_flange_cam' (4x4, metres) and optional 'covariance'
+    (6x6, the COVARIANCE_CONVENTION; null or absent: the wide default), such as a --json output."""
+    data = read_json_object(path, PriorFileError)
+    if "T_flange_cam" not in data:
+        hint = (
+            "; a --method all output holds one per entry of 'results', copy one out"
+            if "results" in data
+            else ""
+        )
+        raise PriorFileError(f"{path}: missing field 'T_flange_cam' (a 4x4 matrix, metres){hint}")
+    T = _matrix_field(data, "T_flange_cam", (4, 4), path)
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(R) < 0:
+        raise PriorFileError(
+            f"{path}: field 'T_flange_cam' must have a rotation (orthonormal, determinant +1) "
+            "in its upper-left 3x3"
+        )
+    if np.abs(T[3] - [0, 0, 0, 1]).max() > 0:
+        raise PriorFileError(f"{path}: field 'T_flange_cam' must have the last row 0 0 0 1")
+    U, _, Vt = np.linalg.svd(R)
+    T[:3, :3] = U @ Vt
+    if data.get("covariance") is None:
+        return Prior(T)
+    cov = _matrix_field(data, "covariance", (6, 6), path)
+    if np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max() or np.linalg.eigvalsh(cov)[0] <= 0:
+        raise PriorFileError(f"{path}: field 'covariance' must be symmetric positive definite")
+    return Prior(T, cov)
+
+
+def robot_noise(
+    dataset: Dataset, sigma_mm: float | None, sigma_deg: float | None
+) -> tuple[RobotPoseNoise, str]:
+    """The dataset's robot pose noise with the command-line overrides, and where it came from."""
+    base = dataset_robot_noise(dataset)
+    source = "dataset.json" if "robot_pose_noise" in dataset.metadata else "default: dataset.json has none"
+    if sigma_mm is None and sigma_deg is None:
+        return base, source
+    noise = RobotPoseNoise(
+        base.translation_sigma_m if sigma_mm is None else sigma_mm / 1000.0,
+        base.rotation_sigma_rad if sigma_deg is None else float(np.radians(sigma_deg)),
+    )
+    return noise, "command line" if None not in (sigma_mm, sigma_deg) else f"command line and {source}"
+
+
+def method_options(settings: CalibrateSettings) -> MethodOptions:
+    prior = None if settings.prior_file is None else load_prior(settings.prior_file)
+    return MethodOptions(
+        prior=prior, map_model=settings.map_model, estimate_depth_scale=settings.estimate_depth_scale
+    )
+
+
+def without_depth(observations: list[FrameObservations]) -> list[FrameObservations]:
+    """Copies of the observations with every marker's depth removed (--no-depth), so that methods
+    which read depth from the raw observations (seed-ekf) see none either."""
+    gone = {"depth_m": None, "depth_cov": None, "points_cam": None, "points_cov": None}
+    return [
+        replace(o, markers=[replace(m, **gone, depth_note="depth not used (--no-depth)") for m in o.markers])
+        for o in observations
+    ]
+
+
+def run_methods(
+    names: list[str],
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    observations: list[FrameObservations],
+    quiet: bool = True,
+) -> list[Result]:
+    """Each method on the same problem. With several, a CalibrationInputError becomes a MethodFailure;
+    with one, it is raised."""
+    results: list[Result] = []
+    bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
+    for name in bar:
+        bar.set_postfix_str(name)
+        try:
+            results.append(run_method(name, problem, options, observations))
+        except CalibrationInputError as exc:
+            if len(names) == 1:
+                raise
+            results.append(MethodFailure(name, str(exc)))
+    return results
+
+
+# ---------------------------------------------------------------- numbers shared by text and JSON
+
+
+# ---------------------------------------------------------------- text
+
+
+# ---------------------------------------------------------------- JSON
+
+
+# ---------------------------------------------------------------- the command
+
+
+def _context(
+    dataset: Dataset, problem: CalibrationProblem, settings: CalibrateSettings, noise_source: str
+) -> dict:
+    return {
+        "dataset": str(dataset.root),
+        "pose_frame": dataset.metadata.get("pose_frame", "flange"),
+        "frames_used": len(problem.frames),
+        "frames_left_out": list(problem.rejected),
+        "use_depth": settings.use_depth,
+        "map_model": settings.map_model,
+        "estimate_depth_scale": settings.estimate_depth_scale,
+        "prior_file": None if settings.prior_file is None else str(settings.prior_file),
+        "robot_pose_noise": problem.robot_noise.to_dict() | {"source": noise_source},
+    }
+
+
+def _print_header(
+    dataset: Dataset, problem: CalibrationProblem, settings: CalibrateSettings, source: str, noise_source: str
+) -> None:
+    n = problem.robot_noise
+    inputs = "pixels and depth" if settings.use_depth else "pixels only"
+    print(f"dataset: {dataset.root} ({len(dataset)} frames; observations {source})")
+    if dataset.metadata.get("pose_frame") == "tcp":
+        print(
+            "robot poses: the controller's TCP, not the flange (dataset.json 'pose_frame'): the "
+            "T_flange_cam below is the camera in that TCP frame"
+        )
+    print(
+        f"problem: {len(problem.frames)} frames, {problem.observation_count} marker observations of "
+        f"{len(problem.marker_ids)} markers ({inputs}; map: {settings.map_model}); robot pose noise "
+        f"{1e3 * n.translation_sigma_m:.3f} mm, {np.degrees(n.rotation_sigma_rad):.4f} deg ({noise_source})"
+    )
+    for line in problem.rejected:
+        print(f"  left out: {line}")
+
+
+def _note_ignored_options(settings: CalibrateSettings) -> None:
+    """Say so when the one method asked for is an OpenCV baseline that ignores the options given."""
+    if not settings.method.startswith("opencv-"):
+        return
+    ignored = [
+        option
+        for option, given in (
+            ("--prior", settings.prior_file is not None),
+            ("--map landmarks", settings.map_model != "board"),
+            ("--depth-scale", settings.estimate_depth_scale),
+        )
+        if given
+    ]
+    if ignored:
+        print(f"note: {settings.method} uses only the pixels; ignoring {', '.join(ignored)}", file=sys.stderr)
+
+
+def calibrate_dataset(
+    dataset_path: Path,
+    settings: CalibrateSettings,
+    json_out: Path | None = None,
+    quiet: bool = False,
+    observations: list[FrameObservations] | None = None,
+) -> list[Result]:
+    """`hec calibrate`: observations (given, cached or detected now), the problem, the methods, the
+    printed report and the JSON. Raises CalibrationInputError and the other input errors."""
+    if json_out is not None:
+        check_json_path(json_out)
+    dataset = load_dataset(dataset_path)
+    options = method_options(settings)
+    noise, noise_source = robot_noise(dataset, settings.robot_sigma_mm, settings.robot_sigma_deg)
+    source = "as just detected"
+    if observations is None:
+        observations, source = cached_or_detected(dataset, quiet)
+    if not settings.use_depth:
+        observations = without_depth(observations)
+    problem = build_problem(observations, dataset.board, dataset.intrinsics, noise, settings.use_depth)
+    _note_ignored_options(settings)
+    results = run_methods(settings.methods, problem, options, observations, quiet)
+    T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
+    _print_header(dataset, problem, settings, source, noise_source)
+    if settings.method == ALL_METHODS:
+        print(format_comparison(results, T_true))
+    else:
+        print(format_calibration(results[0], T_true))
+    if json_out is not None:
+        data = _context(dataset, problem, settings, noise_source)
+        if settings.method == ALL_METHODS:
+            data["results"] = [result_to_dict(r, T_true) for r in results]
+        else:
+            data |= calibration_to_dict(results[0], T_true)
+        print(f"wrote {write_json(json_out, data)}")
+    return results
+
+
+def run(args: argparse.Namespace) -> int:
+    """`hec calibrate` from parsed arguments: 0 when a method calibrated, 2 when none could."""
+    from estimator.solve.calibration import Calibration
+
+    settings = CalibrateSettings(
+        method=args.method,
+        map_model=args.map,
+        estimate_depth_scale=args.depth_scale,
+        use_depth=not args.no_depth,
+        prior_file=args.prior,
+        robot_sigma_mm=args.robot_sigma_mm,
+        robot_sigma_deg=args.robot_sigma_deg,
+    )
+    results = calibrate_dataset(args.dataset, settings, args.json, args.quiet)
+    if not any(isinstance(r, Calibration) for r in results):
+        print("hec: error: no method could calibrate from these observations", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,313 @@
+"""The text and JSON forms of a calibration result (format_calibration, calibration_to_dict) and
+the comparison table of several methods (format_comparison), shared by every command that reports."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator.geometry.lie import pose_minus, so3_log
+from estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
+from estimator.io.files import write_atomic
+from estimator.solve.calibration import Calibration
+from estimator.solve.methods import DEFAULT_METHOD
+
+TRANSFORM_MEANING = (
+    "T_flange_cam: the camera optical frame (x right, y down, z forward) in the flange (tool0) frame; "
+    "OpenCV's cam2gripper. Use: T_base_cam = T_base_flange @ T_flange_cam"
+)
+RPY_CONVENTION = "about the fixed flange axes x, y, z: R = Rz(yaw) Ry(pitch) Rx(roll)"
+
+
+COVARIANCE_CONVENTION = (
+    "6x6 covariance of the perturbation (dt, dtheta) with R = R_est Exp(dtheta), t = t_est + dt: "
+    "dt_x, dt_y, dt_z in metres along the flange axes, then dtheta_x, dtheta_y, dtheta_z in radians "
+    "about the camera axes"
+)
+NO_UNCERTAINTY = "none (OpenCV gives no uncertainty)"
+
+
+WORST_SHOWN = 3
+
+
+def pose_numbers(T: np.ndarray) -> dict:
+    """A (4, 4) pose in the forms people use: translation_mm, quaternion_wxyz, rotation_vector_rad,
+    rotation_angle_deg, rpy_deg (RPY_CONVENTION)."""
+    t, q = xyz_quat_from_transform(T)
+    rotvec = so3_log(T[:3, :3])
+    return {
+        "translation_mm": (1e3 * t).tolist(),
+        "quaternion_wxyz": q.tolist(),
+        "rotation_vector_rad": rotvec.tolist(),
+        "rotation_angle_deg": float(np.degrees(np.linalg.norm(rotvec))),
+        "rpy_deg": np.degrees(rpy_from_transform(T)).tolist(),
+    }
+
+
+def ground_truth_errors(cal: Calibration, T_true: np.ndarray) -> dict:
+    """error_translation_mm, error_rotation_deg (geodesic) and, with a covariance, error_nees:
+    the error normalised by the covariance (6 on average when the covariance is honest)."""
+    dt, dr = pose_error(cal.T_flange_cam, T_true)
+    out = {"error_translation_mm": 1e3 * dt, "error_rotation_deg": float(np.degrees(dr)), "error_nees": None}
+    if cal.covariance is not None:
+        delta = pose_minus(T_true, cal.T_flange_cam)
+        out["error_nees"] = float(delta @ np.linalg.solve(cal.covariance, delta))
+    return out
+
+
+def _worst_markers(cal: Calibration) -> list:
+    return sorted((r for r in cal.residuals if r.used), key=lambda r: -r.rms_px)[:WORST_SHOWN]
+
+
+def _worst_frames(cal: Calibration) -> list[tuple[int, float]]:
+    return sorted(cal.frame_residuals().items(), key=lambda item: -item[1])[:WORST_SHOWN]
+
+
+def _rss(values: np.ndarray | None) -> float | None:
+    return None if values is None else float(np.sqrt(np.sum(np.square(values))))
+
+
+def format_matrix(T: np.ndarray) -> str:
+    return "\n".join("  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T)
+
+
+def _vector(values: Iterable[float], fmt: str) -> str:
+    return " ".join(format(float(v), fmt) for v in values)
+
+
+def _format_pose(T: np.ndarray) -> list[str]:
+    n = pose_numbers(T)
+    return [
+        TRANSFORM_MEANING,
+        format_matrix(T),
+        f"  translation [mm]: {_vector(n['translation_mm'], '+.3f')}",
+        f"  quaternion (w x y z): {_vector(n['quaternion_wxyz'], '+.6f')}",
+        f"  rotation vector [rad]: {_vector(n['rotation_vector_rad'], '+.6f')}"
+        f" (angle {n['rotation_angle_deg']:.4f} deg)",
+        f"  roll-pitch-yaw [deg] ({RPY_CONVENTION}): {_vector(n['rpy_deg'], '+.4f')}",
+    ]
+
+
+def _format_uncertainty(cal: Calibration) -> list[str]:
+    if cal.covariance is None:
+        lines = [f"uncertainty (1 sigma): {NO_UNCERTAINTY}"]
+    else:
+        lines = [
+            f"uncertainty (1 sigma): translation [mm] along flange x y z: "
+            f"{_vector(cal.sigma_translation_mm, '.4f')}; rotation [deg] about camera x y z: "
+            f"{_vector(cal.sigma_rotation_deg, '.5f')}"
+        ]
+    report = cal.diagnostics.get("observability")
+    if report is not None and report.observable:
+        lines.append(
+            "Cramer-Rao bound (1 sigma, the best any method can do from these views): translation [mm] "
+            f"{_vector(report.crb_sigma_translation_mm, '.4f')}; rotation [deg] "
+            f"{_vector(report.crb_sigma_rotation_deg, '.5f')}"
+        )
+    elif report is not None:
+        lines.append("Cramer-Rao bound: not finite, the mount is not observable from these views")
+    if cal.depth_scale is not None:
+        sigma = "" if cal.depth_scale_sigma is None else f" +- {cal.depth_scale_sigma:.6f}"
+        lines.append(f"depth scale: {cal.depth_scale:.6f}{sigma} (true depth = scale x measured)")
+    return lines
+
+
+def _format_residuals(cal: Calibration) -> list[str]:
+    depth = cal.residual_depth_rms_mm
+    depth_text = "no depth" if depth is None else f"depth RMS {depth:.3f} mm"
+    frames = ", ".join(f"{f} ({v:.3f} px)" for f, v in _worst_frames(cal)) or "-"
+    markers = ", ".join(
+        f"frame {r.frame} marker {r.marker_id} ({r.rms_px:.3f} px)" for r in _worst_markers(cal)
+    )
+    lines = [
+        f"residuals (at the reported flange poses): RMS {cal.residual_rms_px:.3f} px, {depth_text}",
+        f"  worst frames: {frames}",
+        f"  worst markers: {markers or '-'}",
+    ]
+    rejected = [r for r in cal.residuals if not r.used]
+    if rejected:
+        shown = ", ".join(f"frame {r.frame} marker {r.marker_id} ({r.rms_px:.3f} px)" for r in rejected[:5])
+        more = f" and {len(rejected) - 5} more" if len(rejected) > 5 else ""
+        lines.append(f"  rejected by the outlier gate (residual at the estimate): {shown}{more}")
+    return lines
+
+
+def _format_run(cal: Calibration) -> list[str]:
+    d = cal.diagnostics
+    start = f"; start: {d['initialisation']}" if d.get("initialisation") else ""
+    return [
+        f"observations: {cal.observations_used} used, {cal.observations_rejected} rejected",
+        f"solver: {d.get('iterations', '?')} iterations, {1e3 * d.get('time_s', float('nan')):.1f} ms{start}",
+    ]
+
+
+def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> str:
+    """The full text report of one Calibration; with T_true (4, 4) its errors against it."""
+    lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam), *_format_uncertainty(cal)]
+    lines += [*_format_residuals(cal), *_format_run(cal)]
+    lines += [f"warning: {w}" for w in cal.warnings] or ["warnings: none"]
+    if T_true is not None:
+        e = ground_truth_errors(cal, T_true)
+        nees = (
+            ""
+            if e["error_nees"] is None
+            else f"; normalised error (NEES, ~6 if honest) {e['error_nees']:.2f}"
+        )
+        lines.append(
+            f"vs ground truth: translation error {e['error_translation_mm']:.3f} mm, "
+            f"rotation error {e['error_rotation_deg']:.4f} deg (geodesic){nees}"
+        )
+    return "\n".join(lines)
+
+
+def _cell(value: float | None, fmt: str, width: int) -> str:
+    return f"{'-':>{width}}" if value is None else f"{value:>{width}{fmt}}"
+
+
+def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str]) -> str:
+    """One table row. earlier: failure reason -> first method that gave it (updated here)."""
+    if isinstance(r, MethodFailure):
+        reason = r.error.removeprefix(f"{r.method}: ")
+        first = earlier.setdefault(reason, r.method)
+        return f"{r.method:<18} failed: " + (reason if first == r.method else f"as {first}")
+    x, y, z = 1e3 * r.T_flange_cam[:3, 3]
+    row = f"{r.method:<18} {x:>+9.3f} {y:>+9.3f} {z:>+9.3f}"
+    row += f" {_cell(_rss(r.sigma_translation_mm), '.4f', 10)} {_cell(_rss(r.sigma_rotation_deg), '.5f', 11)}"
+    row += f" {r.residual_rms_px:>9.3f} {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
+    if T_true is not None:
+        e = ground_truth_errors(r, T_true)
+        row += f" {e['error_translation_mm']:>9.3f} {e['error_rotation_deg']:>9.4f}"
+    return row
+
+
+def format_comparison(results: list[Result], T_true: np.ndarray | None = None) -> str:
+    """One row per method: translation, root-sum-square sigmas, residual, time, and errors with T_true."""
+    header = (
+        f"{'method':<18} {'x [mm]':>9} {'y [mm]':>9} {'z [mm]':>9} {'sigma_t mm':>10} {'sigma_r deg':>11}"
+    )
+    header += f" {'resid px':>9} {'time ms':>9}" + (
+        f" {'err mm':>9} {'err deg':>9}" if T_true is not None else ""
+    )
+    lines = [header]
+    failures: dict[str, str] = {}
+    lines += [_comparison_row(r, T_true, failures) for r in results]
+    lines.append(
+        "sigma_t, sigma_r: root-sum-square of the 1-sigma values (translation along the flange axes, "
+        "rotation about the camera axes), '-' = no uncertainty; resid: pixel RMS at the reported flange poses"
+    )
+    return "\n".join(lines + _comparison_notes(results))
+
+
+def _comparison_notes(results: list[Result]) -> list[str]:
+    """The Cramer-Rao bound once, and each warning once with the methods that raised it."""
+    done = [r for r in results if isinstance(r, Calibration)]
+    lines = []
+    # The bound at the default method's estimate (any good estimate gives nearly the same).
+    shown = next((r for r in done if r.method == DEFAULT_METHOD), done[0] if done else None)
+    report = None if shown is None else shown.diagnostics.get("observability")
+    if report is not None and report.observable:
+        lines.append(
+            f"Cramer-Rao bound (1 sigma, at the {shown.method} estimate): translation [mm] "
+            f"{_vector(report.crb_sigma_translation_mm, '.4f')}; rotation [deg] "
+            f"{_vector(report.crb_sigma_rotation_deg, '.5f')}"
+        )
+    warnings: dict[str, list[str]] = {}
+    for r in done:
+        for w in r.warnings:
+            warnings.setdefault(w, []).append(r.method)
+    lines += [f"warning ({', '.join(methods)}): {w}" for w, methods in warnings.items()]
+    return lines
+
+
+def _floats(a: np.ndarray | None) -> list | None:
+    return None if a is None else np.asarray(a, dtype=np.float64).tolist()
+
+
+def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> dict:
+    """The JSON form of one Calibration (SI inside the matrices, mm/deg where the key says so);
+    with T_true (4, 4) the errors against it."""
+    d = cal.diagnostics
+    report = d.get("observability")
+    data = {
+        "method": cal.method,
+        "transform": TRANSFORM_MEANING,
+        "T_flange_cam": _floats(cal.T_flange_cam),
+        **pose_numbers(cal.T_flange_cam),
+        "rpy_convention": RPY_CONVENTION,
+        "covariance": _floats(cal.covariance),
+        "covariance_convention": COVARIANCE_CONVENTION,
+        "sigma_translation_mm": _floats(cal.sigma_translation_mm),
+        "sigma_rotation_deg": _floats(cal.sigma_rotation_deg),
+        "T_base_board": _floats(cal.T_base_board),
+        "landmarks_base": None
+        if cal.landmarks_base is None
+        else {str(i): _floats(c) for i, c in cal.landmarks_base.items()},
+        "depth_scale": cal.depth_scale,
+        "depth_scale_sigma": cal.depth_scale_sigma,
+        "residual_rms_px": cal.residual_rms_px,
+        "residual_depth_rms_mm": cal.residual_depth_rms_mm,
+        "frame_residuals": [{"frame": f, "rms_px": v} for f, v in cal.frame_residuals().items()],
+        "marker_residuals": [asdict(r) for r in cal.residuals],
+        "observations_used": cal.observations_used,
+        "observations_rejected": cal.observations_rejected,
+        "iterations": d.get("iterations"),
+        "time_s": d.get("time_s"),
+        "initialisation": d.get("initialisation"),
+        "observability": None if report is None else report.to_dict(),
+        "warnings": list(cal.warnings),
+    }
+    if T_true is not None:
+        data |= ground_truth_errors(cal, T_true)
+    return data
+
+
+def result_to_dict(result: Result, T_true: np.ndarray | None = None) -> dict:
+    if isinstance(result, MethodFailure):
+        return {"method": result.method, "error": result.error}
+    return calibration_to_dict(result, T_true)
+
+
+def _finite(value: object) -> object:
+    """value with numpy scalars and arrays as Python ones, and every NaN or infinite float
+    replaced by None (JSON has neither)."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class MethodFailure:
+    """A method that could not calibrate from these observations, and why."""
+
+    method: str
+    error: str
+
+
+Result = Calibration | MethodFailure
+
+
+def check_json_path(path: Path) -> None:
+    """Raise FileNotFoundError / IsADirectoryError now rather than after the work."""
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, expected a JSON file name")
+
+
+def write_json(path: Path, data: dict) -> Path:
+    """Write data to path through a temporary sibling and a rename: never half-written.
+    NaN and infinite numbers are written as null."""
+    check_json_path(path)
+    return write_atomic(path, json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")

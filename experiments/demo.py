@@ -1,0 +1,65 @@
+"""`hec demo` and `hec simulate`: render a scenario into a dataset and print its ground truth;
+the demo then detects, grades and calibrates it with ekf."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from estimator.geometry.transforms import rpy_from_transform, xyz_quat_from_transform
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    """`hec demo` (args.command == "demo") or `hec simulate`; 0 done, 2 for a bad scenario."""
+    from estimator.geometry.waypoints import WaypointFileError
+    from sim.scenario import ScenarioError, load_scenario
+    from sim.simulate import SimulationError, simulate
+
+    try:
+        if args.command == "demo":
+            scenario = load_scenario(None)
+            result = simulate(scenario, args.out, args.seed, force=True, preview=True)
+        else:
+            scenario = load_scenario(args.scenario)
+            seed = scenario.seed if args.seed is None else args.seed
+            result = simulate(scenario, args.out, seed, args.force, args.preview, progress=not args.quiet)
+    except (ScenarioError, WaypointFileError, SimulationError) as exc:
+        print(f"hec: error: {exc}", file=sys.stderr)
+        return 2
+    _print_simulation(result, scenario.mount.transform())
+    if args.command == "demo":
+        _demo_detect_and_calibrate(result.out_dir)
+    return 0
+
+
+def _format_matrix(T: np.ndarray) -> str:
+    return "\n".join("  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T)
+
+
+def _print_simulation(result: object, T_flange_cam: np.ndarray) -> None:
+    t, q = xyz_quat_from_transform(T_flange_cam)
+    rpy = np.degrees(rpy_from_transform(T_flange_cam))
+    print(f"dataset: {result.out_dir}  ({result.frames} frames, {len(result.skipped)} waypoints skipped)")
+    for index, reason in result.skipped:
+        print(f"  skipped waypoint {index}: {reason}")
+    print("ground truth T_flange_cam (camera optical frame in the flange/tool0 frame; OpenCV: cam2gripper):")
+    print(_format_matrix(T_flange_cam))
+    print(f"  translation [mm]: {t[0] * 1000:+.3f} {t[1] * 1000:+.3f} {t[2] * 1000:+.3f}")
+    print(f"  quaternion (w x y z): {q[0]:+.6f} {q[1]:+.6f} {q[2]:+.6f} {q[3]:+.6f}")
+    print(f"  roll-pitch-yaw [deg]: {rpy[0]:+.4f} {rpy[1]:+.4f} {rpy[2]:+.4f}")
+    for path in result.preview_files:
+        print(f"preview: {path}")
+
+
+def _demo_detect_and_calibrate(dataset: Path) -> None:
+    """The demo after simulation: detect and grade, then calibrate with ekf."""
+    from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
+    from experiments.detection import run_detect
+
+    print()
+    observations = run_detect(dataset, overlay=True, quiet=True)
+    print()
+    calibrate_dataset(dataset, CalibrateSettings(method="ekf"), quiet=True, observations=observations)

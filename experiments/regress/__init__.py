@@ -1,0 +1,1 @@
+"""`hec regress`: the pipeline against a recorded baseline on simulated ground truth."""

@@ -1,0 +1,308 @@
+"""`hec record` and `hec run`: a calibration session on the real cell (a UR arm and a RealSense)
+or, with --sim, on the simulated one; `hec run` calibrates the recording afterwards.
+
+Order on the real cell: read the waypoints, connect to the arm, plan (joint targets, limits,
+workspace box), print the plan, stop there for --dry-run, open the camera, ask before the
+first motion (unless --yes), then record frame by frame (experiments.session.session).
+Exit codes: 0 done, 2 nothing moved (bad input, refused, unreachable), 3 the session
+stopped part-way (the frames so far are kept; --resume continues).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
+from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointFileError, read_waypoint_file
+from estimator.io.dataset import DatasetRecorder, GroundTruth
+from estimator.solve.methods import DEFAULT_METHOD, METHODS
+from experiments.session.cell_config import CellConfig, CellConfigError, load_cell_config
+from experiments.session.session import LiveEstimate, SessionCell, run_session
+
+if TYPE_CHECKING:
+    from hardware.cell import HardwareCell
+
+EXIT_STOPPED = 3
+CALIBRATION_FILE = "calibration.json"
+
+
+class RecordError(ValueError):
+    """The session cannot start; nothing has moved."""
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    for name, text in (
+        ("record", "record a calibration session on the real cell (or --sim) into a dataset"),
+        ("run", "record a calibration session, then calibrate it (OUT/calibration.json)"),
+    ):
+        p = sub.add_parser(name, help=text)
+        where = p.add_mutually_exclusive_group()
+        where.add_argument("--robot", metavar="HOST", help="the UR controller's address (or the cell file's)")
+        where.add_argument("--sim", action="store_true", help="run the session on the simulated cell")
+        p.add_argument(
+            "--camera",
+            nargs="?",
+            const="",
+            metavar="SERIAL",
+            help="RealSense serial number (default: the cell file's, else the first camera found)",
+        )
+        p.add_argument("--cell", type=Path, metavar="FILE", help="cell TOML (see models/cells/ur5_d435.toml)")
+        p.add_argument(
+            "--waypoints",
+            type=Path,
+            metavar="FILE",
+            help="waypoint CSV (required on the real cell; --sim: default the scenario's trajectory)",
+        )
+        p.add_argument("--scenario", type=Path, help="--sim: scenario TOML (default: the built-in one)")
+        p.add_argument("--seed", type=int, help="--sim: noise seed (default: the scenario's)")
+        p.add_argument("--out", required=True, type=Path, help="dataset folder to create (or --resume)")
+        p.add_argument("--dry-run", action="store_true", help="print the plan and stop; nothing moves")
+        p.add_argument("--yes", action="store_true", help="do not ask before the first motion")
+        p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
+        p.add_argument("--no-live", action="store_true", help="no detection and running estimate per frame")
+        if name == "run":
+            p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS))
+
+
+# ---------------------------------------------------------------- opening a cell
+
+
+def _check_out(args: argparse.Namespace) -> None:
+    if args.resume and not (args.out / "dataset.json").is_file():
+        raise RecordError(f"{args.out}: no session to resume (no dataset.json)")
+    if not args.resume and not args.dry_run and args.out.exists():
+        raise RecordError(f"{args.out} already exists; add --resume to continue it, or choose another --out")
+
+
+def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], dict, GroundTruth, Callable]:
+    from sim.cell import SimCell
+    from sim.scenario import load_scenario
+    from sim.session_cell import SimulatedCell
+    from sim.simulate import scenario_waypoints, simulation_metadata
+
+    scenario = load_scenario(args.scenario)
+    seed = scenario.seed if args.seed is None else args.seed
+    waypoints = read_waypoint_file(args.waypoints) if args.waypoints else scenario_waypoints(scenario)
+    cell = SimCell(scenario, np.random.default_rng(seed))
+    extra = simulation_metadata(scenario, seed)
+    return (
+        SimulatedCell(cell),
+        waypoints,
+        extra,
+        cell.ground_truth(),
+        lambda q: forward(cell.cell.kinematics, q),
+    )
+
+
+def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None]:
+    kinematics = ROBOTS[model]
+    return lambda T_base_flange, q_seed: solve_ik_nearest(kinematics, T_base_flange, q_seed)
+
+
+# ---------------------------------------------------------------- the plan
+
+
+def format_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> str:
+    """One line per waypoint: joint target (degrees) and the flange position it gives
+    (nominal kinematics, metres), or why it is skipped."""
+    lines = [f"{'#':>3}  {'label':<22} {'joints q1..q6 [deg]':<50} flange [m]"]
+    for move in moves:
+        w = move.waypoint
+        if move.joints is None:
+            lines.append(f"{w.index:>3}  {w.label:<22} skipped: {move.problem}")
+            continue
+        q = " ".join(f"{v:+7.1f}" for v in np.degrees(move.joints))
+        p = " ".join(f"{v:+.3f}" for v in forward_fk(move.joints)[:3, 3])
+        lines.append(f"{w.index:>3}  {w.label:<22} {q:<50} {p}")
+    return "\n".join(lines)
+
+
+def motion_time_s(moves: list[PlannedMove], q_start: np.ndarray, config: CellConfig) -> float:
+    """Rough duration of the session's motion: a trapezoid per joint move at the configured
+    speed and acceleration, plus the dwell and one camera burst per waypoint."""
+    speed = np.radians(config.robot.joint_speed_deg_s)
+    acceleration = np.radians(config.robot.joint_acceleration_deg_s2)
+    capture_s = config.camera.burst / config.camera.fps + 0.1
+    total, q = 0.0, q_start
+    for move in moves:
+        if move.joints is None:
+            continue
+        distance = float(np.max(np.abs(move.joints - q)))
+        ramp = speed / acceleration
+        total += distance / speed + ramp if distance > speed * ramp else 2 * np.sqrt(distance / acceleration)
+        total += config.robot.dwell_s + capture_s
+        q = move.joints
+    return total
+
+
+def _confirm(text: str, read_line: Callable[[str], str] | None) -> bool:
+    if read_line is None:
+        if not sys.stdin.isatty():
+            raise RecordError("no terminal to confirm the motion on; pass --yes to start without asking")
+        read_line = input
+    try:
+        return read_line(text).strip().lower() in ("y", "yes")
+    except EOFError:
+        return False
+
+
+# ---------------------------------------------------------------- the command
+
+
+def run(
+    args: argparse.Namespace,
+    camera_context: object | None = None,
+    read_line: Callable[[str], str] | None = None,
+) -> int:
+    """`hec record` / `hec run`. camera_context: the librealsense context to find the camera in
+    (None: a fresh one); read_line: asks for confirmation (None: the terminal)."""
+    from hardware.realsense import CameraError
+    from hardware.ur_robot import RobotError
+
+    user_errors: tuple[type[Exception], ...] = (
+        RecordError,
+        CellConfigError,
+        WaypointFileError,
+        RobotError,
+        CameraError,
+        FileExistsError,
+    )
+    if args.sim:  # only then: importing sim picks an OpenGL backend, which a robot PC may lack
+        from sim.scenario import ScenarioError
+
+        user_errors += (ScenarioError,)
+    try:
+        _check_out(args)
+        if args.sim:
+            return _record_sim(args)
+        return _record_hardware(args, camera_context, read_line)
+    except user_errors as exc:
+        print(f"hec: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _record_sim(args: argparse.Namespace) -> int:
+    cell, waypoints, extra, truth, forward_fk = _open_sim(args)
+    try:
+        moves = cell.plan(waypoints)
+        _print_plan(moves, forward_fk)
+        if args.dry_run:
+            print("dry run: nothing moved")
+            return 0
+        return _session(args, cell, moves, extra, truth)
+    finally:
+        cell.close()
+
+
+def _record_hardware(
+    args: argparse.Namespace, camera_context: object | None, read_line: Callable[[str], str] | None
+) -> int:
+    from estimator.targets.board import find_board
+    from hardware.cell import HardwareCell, plan_moves
+    from hardware.realsense import RealSenseCamera
+
+    config = load_cell_config(args.cell)
+    if args.waypoints is None:
+        raise RecordError("give the waypoints with --waypoints FILE (teach them with `hec teach`)")
+    waypoints = read_waypoint_file(args.waypoints)
+    kinematics = ROBOTS[config.robot.model]
+    inverse = _inverse(config.robot.model)
+    with config.open_robot(config.robot_host(args.robot), read_only=args.dry_run) as robot:
+        moves = plan_moves(robot, inverse, waypoints)
+        _print_plan(moves, lambda q: forward(kinematics, q))
+        print(
+            f"joint speed {config.robot.joint_speed_deg_s:g} deg/s, acceleration "
+            f"{config.robot.joint_acceleration_deg_s2:g} deg/s^2, dwell {config.robot.dwell_s:g} s: "
+            f"about {motion_time_s(moves, robot.joints(), config):.0f} s"
+        )
+        if args.dry_run:
+            print("dry run: nothing moved")
+            return 0
+        with RealSenseCamera(config.camera_settings(args.camera), camera_context) as camera:
+            usable = sum(m.joints is not None for m in moves)
+            question = (
+                f"The arm at {robot.host} will move through {usable} waypoints. Keep the cell clear and a "
+                "hand on the emergency stop. Start? [y/N] "
+            )
+            if not args.yes and not _confirm(question, read_line):
+                print("not started: nothing moved")
+                return 2
+            cell = HardwareCell(robot, camera, find_board(config.board), inverse, config.robot.pose_frame)
+            return _session(args, cell, moves, _hardware_metadata(args, config, cell), None)
+
+
+def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: HardwareCell) -> dict:
+    extra = {
+        "depth_noise": config.camera.depth_noise(cell.depth_scale_m).to_dict(),
+        "robot_pose_noise": config.robot.pose_noise().to_dict(),
+        "pose_frame": cell.pose_frame,
+        "cell": cell.describe(),
+        "cell_config": config.to_dict(),
+        "waypoint_file": str(args.waypoints),
+    }
+    if cell.pose_frame == "tcp":
+        extra["flange_pose"] = (
+            "reported T_base_tcp: the controller's TCP (offset in cell.robot.T_flange_tcp) in the base "
+            "frame; metres, quaternion w x y z"
+        )
+    return extra
+
+
+def _print_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> None:
+    usable = sum(m.joints is not None for m in moves)
+    print(f"plan: {len(moves)} waypoints, {usable} to visit, {len(moves) - usable} skipped")
+    print(format_plan(moves, forward_fk))
+
+
+def _session(
+    args: argparse.Namespace,
+    cell: SessionCell,
+    moves: list[PlannedMove],
+    extra: dict,
+    truth: GroundTruth | None,
+) -> int:
+    """Record the planned moves into --out (or resume it), then report; `hec run` calibrates."""
+    if not any(m.joints is not None for m in moves):
+        raise RecordError("no waypoint can be used; see the reasons above")
+    recorder = DatasetRecorder(
+        args.out,
+        cell.intrinsics,
+        cell.board,
+        cell.depth_scale_m,
+        cell.source,
+        extra=extra,
+        ground_truth=truth,
+        resume=args.resume,
+    )
+    live = None if args.no_live else LiveEstimate(recorder.root)
+    outcome = run_session(cell, moves, recorder, live)
+    print(f"dataset: {outcome.root} ({outcome.total} frames, {outcome.recorded} recorded now)")
+    if outcome.stopped is not None:
+        print(f"hec: session stopped: {outcome.stopped}", file=sys.stderr)
+        print(
+            f"the {outcome.total} frames recorded are kept in {outcome.root}; fix the cause, then run the "
+            "same command with --resume",
+            file=sys.stderr,
+        )
+        return EXIT_STOPPED
+    if args.command == "run":
+        return _calibrate(args)
+    print(f"next: hec calibrate {outcome.root}")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from estimator.solve.calibration import Calibration
+    from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
+
+    print()
+    results = calibrate_dataset(
+        args.out, CalibrateSettings(method=args.method), args.out / CALIBRATION_FILE, quiet=True
+    )
+    return 0 if isinstance(results[0], Calibration) else 2

@@ -1,0 +1,175 @@
+"""The calibration session, the same for the simulated and the real cell: for each planned
+waypoint move, settle, capture, read the pose, write the frame, and (optionally) detect it
+and re-run the EKF over every frame so far to show the running estimate and its sigma.
+
+A cell (SessionCell) is sim.session_cell.SimulatedCell or hardware.cell.HardwareCell.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
+from estimator.io.dataset import Capture, DatasetRecorder, Frame, load_dataset
+from estimator.observe.observations import (
+    FrameObservations,
+    dataset_depth_noise,
+    observe_dataset,
+    observe_frame,
+    save_observations,
+)
+from estimator.solve.calibration import Calibration, MethodOptions
+from estimator.solve.methods import DEFAULT_METHOD, run_method
+from estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
+from estimator.targets.board import BoardDefinition
+from estimator.targets.qr import DetectorSettings, QRDetector
+from experiments.session.plot import PLOT_FILE, plot_convergence
+from hardware.realsense import CameraError
+from hardware.ur_robot import RobotError
+
+# Why the running estimate may not exist yet: too few usable frames, or the method failed.
+_NOT_YET = (CalibrationInputError, ValueError, np.linalg.LinAlgError)
+# What stops a session (the frames recorded before stay): the arm, the camera, or Ctrl-C.
+SESSION_STOPS = (RobotError, CameraError, KeyboardInterrupt)
+
+
+class SessionCell(Protocol):
+    """What a session needs of a cell: what its camera is, a plan of joint targets, moving
+    (raises WaypointRejected to skip a waypoint, a SESSION_STOPS error to stop) and capturing."""
+
+    source: str
+    intrinsics: CameraIntrinsics
+    board: BoardDefinition
+    depth_scale_m: float
+
+    def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]: ...
+    def move_to(self, move: PlannedMove) -> None: ...
+    def capture(self) -> Capture: ...
+    def close(self) -> None: ...
+
+
+class LiveEstimate:
+    """Detects each new frame of a recording and runs the EKF over every frame so far, with
+    the dataset's depth and robot noise, so the running estimate is what `hec calibrate`
+    would give for the frames recorded up to now."""
+
+    def __init__(self, root: Path, method: str = DEFAULT_METHOD) -> None:
+        dataset = load_dataset(root)
+        self.board, self.intrinsics = dataset.board, dataset.intrinsics
+        self.depth_noise = dataset_depth_noise(dataset)
+        self.robot_noise = dataset_robot_noise(dataset)
+        self.settings = DetectorSettings()
+        self.detector = QRDetector(dataset.board, self.settings)
+        self.method = method
+        self.observations: list[FrameObservations] = observe_dataset(dataset, self.settings, self.depth_noise)
+
+    def add(self, index: int, frame: Frame) -> str:
+        """Detect frame number index; returns a line: markers found and the running estimate."""
+        obs = observe_frame(index, frame, self.detector, self.depth_noise)
+        self.observations.append(obs)
+        found = f"{len(obs.markers)}/{len(self.board.marker_ids)} markers"
+        if obs.problem:
+            found += f" ({obs.problem})"
+        return f"{found} | {self.method}: {self._estimate_line()}"
+
+    def estimate(self, observations: list[FrameObservations] | None = None) -> Calibration:
+        """The method's result over the given observations (default: every frame so far).
+        Raises CalibrationInputError (too few usable frames) and the method's own errors."""
+        observations = self.observations if observations is None else observations
+        problem = build_problem(observations, self.board, self.intrinsics, self.robot_noise)
+        return run_method(self.method, problem, MethodOptions(), observations)
+
+    def history(self) -> list[tuple[int, Calibration]]:
+        """The estimate after each frame so far, as (frames used, result), from the first
+        frame count that calibrates."""
+        results = []
+        for count in range(1, len(self.observations) + 1):
+            try:
+                results.append((count, self.estimate(self.observations[:count])))
+            except _NOT_YET:
+                continue
+        return results
+
+    def _estimate_line(self) -> str:
+        try:
+            cal = self.estimate()
+        except _NOT_YET as exc:
+            return f"not yet ({exc})"
+        t = 1e3 * cal.T_flange_cam[:3, 3]
+        line = "t [" + " ".join(f"{v:+.2f}" for v in t) + "] mm"
+        if cal.sigma_translation_mm is not None:
+            line += " +- [" + " ".join(f"{v:.2f}" for v in cal.sigma_translation_mm) + "] mm"
+            line += ", rotation +- [" + " ".join(f"{v:.3f}" for v in cal.sigma_rotation_deg) + "] deg"
+        return line
+
+    def save(self, root: Path) -> list[Path]:
+        """Write the observations as the dataset's detections.json (after its last change) and,
+        once the estimate has a sigma, the picture of how it settled. Returns the files."""
+        written = [save_observations(root, self.observations, self.settings, self.depth_noise)]
+        history = self.history()
+        if any(c.covariance is not None for _, c in history):
+            written.append(plot_convergence(history, root / PLOT_FILE))
+        return written
+
+
+@dataclass
+class SessionOutcome:
+    """recorded: frames written by this run; total: frames in the dataset; skipped: (waypoint
+    index, reason); stopped: why the session ended early, None when every waypoint was visited."""
+
+    root: Path
+    recorded: int = 0
+    total: int = 0
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    stopped: str | None = None
+
+
+def run_session(
+    cell: SessionCell,
+    moves: list[PlannedMove],
+    recorder: DatasetRecorder,
+    live: LiveEstimate | None = None,
+    say: Callable[[str], None] = print,
+) -> SessionOutcome:
+    """Visit every planned move not yet recorded (a resumed session skips those), writing
+    each frame as it is captured. A stop of the arm or camera, or Ctrl-C, ends the session
+    with the frames so far kept and dataset.json marked 'interrupted'."""
+    outcome = SessionOutcome(recorder.root)
+    done = recorder.recorded_waypoints
+    todo = [m for m in moves if m.waypoint.index not in done]
+    if done:
+        say(f"resuming: {len(recorder.rows)} frames recorded before, {len(todo)} waypoints to go")
+    try:
+        for n, move in enumerate(todo, start=1):
+            w = move.waypoint
+            head = f"[{n}/{len(todo)}] waypoint {w.index} ({w.label})"
+            try:
+                if move.problem is not None:
+                    raise WaypointRejected(move.problem)
+                cell.move_to(move)
+            except WaypointRejected as rejected:
+                outcome.skipped.append((w.index, rejected.reason))
+                say(f"{head}: skipped, {rejected.reason}")
+                continue
+            capture = cell.capture()
+            index = recorder.add_frame(capture, w.index)
+            outcome.recorded += 1
+            say(f"{head}: frame {index}" + (f" | {live.add(index, capture.frame)}" if live else ""))
+    except SESSION_STOPS as exc:
+        outcome.stopped = str(exc) if not isinstance(exc, KeyboardInterrupt) else "stopped by Ctrl-C"
+    outcome.total = len(recorder.rows)
+    session = {
+        "waypoints": len(moves),
+        "skipped_waypoints": [{"index": i, "reason": r} for i, r in outcome.skipped],
+        "stopped": outcome.stopped,
+    }
+    recorder.finish("interrupted" if outcome.stopped else "complete", {"session": session})
+    if live is not None:
+        live.save(recorder.root)
+    return outcome

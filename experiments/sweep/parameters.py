@@ -1,0 +1,122 @@
+"""The parameters a sweep can vary (each one a column of the result rows, named as here), and
+the fidelities they apply to. No simulator imports: the row schema and the report use them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from estimator.geometry.waypoints import PAPER_OFFSETS_M, ROTATION_RICH_VIEWS_DEG
+
+MEASUREMENTS, RENDER = "measurements", "render"
+
+
+FIDELITIES = (MEASUREMENTS, RENDER)
+
+
+BOTH = FIDELITIES
+
+
+TRAJECTORIES = ("rotation-rich", "paper", "random")
+
+
+MOUNTS = ("fixed", "random")
+
+
+# Views of the full trajectories; a random trajectory has as many as the rotation-rich one by default.
+FULL_VIEWS = {"rotation-rich": len(ROTATION_RICH_VIEWS_DEG), "paper": len(PAPER_OFFSETS_M), "random": 17}
+
+
+MIN_WAYPOINTS = 3
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and v == v and abs(v) != float("inf")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A sweep parameter: its row type, the fidelities it applies to, what values it takes."""
+
+    name: str
+    kind: type
+    fidelities: tuple[str, ...]
+    expected: str
+    valid: Callable[[Any], bool]
+    doc: str
+
+
+def _float(name: str, fidelities: tuple[str, ...], lo: float | None, strict: bool, doc: str) -> Parameter:
+    if lo is None:
+        return Parameter(name, float, fidelities, "a number", _is_number, doc)
+    expected = f"a number {'>' if strict else '>='} {lo:g}"
+    return Parameter(
+        name, float, fidelities, expected, lambda v: _is_number(v) and (v > lo if strict else v >= lo), doc
+    )
+
+
+PARAMETERS: dict[str, Parameter] = {
+    p.name: p
+    for p in (
+        _float(
+            "pixel_sigma_px",
+            (MEASUREMENTS,),
+            0.0,
+            True,
+            "corner noise per pixel coordinate, pixels (default 0.3); at render fidelity the image "
+            "noise is rgb_sigma_grey and the detector's corner noise follows from it",
+        ),
+        _float(
+            "rgb_sigma_grey",
+            (RENDER,),
+            0.0,
+            False,
+            "additive Gaussian image noise, 8-bit grey levels (scenario noise.rgb.sigma)",
+        ),
+        _float(
+            "depth_subpixel",
+            BOTH,
+            0.0,
+            False,
+            "stereo disparity error, pixels (scenario noise.depth.subpixel)",
+        ),
+        _float("depth_bias_scale", BOTH, 0.0, True, "depth scale error: z_measured = scale * z + offset"),
+        _float("depth_bias_offset_mm", BOTH, None, False, "depth offset, mm"),
+        _float("robot_translation_sigma_mm", BOTH, 0.0, False, "reported flange position noise per axis, mm"),
+        _float(
+            "robot_rotation_sigma_deg", BOTH, 0.0, False, "reported flange rotation noise per axis, degrees"
+        ),
+        Parameter(
+            "waypoints",
+            int,
+            BOTH,
+            f"an integer >= {MIN_WAYPOINTS}",
+            lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= MIN_WAYPOINTS,
+            "the first N views of the trajectory (random: N views); default all "
+            f"({', '.join(f'{k} {n}' for k, n in FULL_VIEWS.items())})",
+        ),
+        Parameter(
+            "trajectory",
+            str,
+            BOTH,
+            f"one of {', '.join(map(repr, TRAJECTORIES))}",
+            lambda v: v in TRAJECTORIES,
+            "rotation-rich (tilted and rolled views, the default), paper (translation only), random "
+            "(views of the board centre, tilt 10-35 deg, any azimuth, roll +-30 deg, 0.9-1.2 x distance_m)",
+        ),
+        Parameter(
+            "mount",
+            str,
+            BOTH,
+            f"one of {', '.join(map(repr, MOUNTS))}",
+            lambda v: v in MOUNTS,
+            "fixed: the scenario's T_flange_cam; random: a new one per trial near it (up to 50 mm, ~20 deg)",
+        ),
+    )
+}
+
+
+def parameter_columns(fidelity: str) -> list[str]:
+    """The parameter columns of a fidelity's rows, in row order."""
+    return [name for name, p in PARAMETERS.items() if fidelity in p.fidelities]

@@ -1,0 +1,48 @@
+"""The simulated cell behind the calibration session's interface
+(experiments.session.session.SessionCell), as hardware.cell.HardwareCell is the real one."""
+
+from __future__ import annotations
+
+from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
+from estimator.io.dataset import Capture
+from sim.cell import SimCell
+
+
+class SimulatedCell:
+    """A SimCell behind the session interface. Planning moves the simulated arm through the
+    waypoints and back without drawing noise, so a session draws the same noise as
+    `hec simulate` with the same seed."""
+
+    source = "sim"
+
+    def __init__(self, cell: SimCell) -> None:
+        self.cell = cell
+        self.intrinsics = cell.intrinsics
+        self.board = cell.board
+        self.depth_scale_m = cell.scenario.noise.depth_quantisation.depth_scale_m
+
+    def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]:
+        start_joints, start_time = self.cell.joints.copy(), self.cell.time_s
+        moves = []
+        try:
+            for waypoint in waypoints:
+                try:
+                    self.cell.move_to(waypoint)
+                    moves.append(PlannedMove(waypoint, self.cell.joints.copy()))
+                except WaypointRejected as rejected:
+                    moves.append(PlannedMove(waypoint, None, rejected.reason))
+        finally:
+            self.cell.set_joints(start_joints)
+            self.cell.time_s = start_time
+        return moves
+
+    def move_to(self, move: PlannedMove) -> None:
+        """Raises WaypointRejected when the planned joints cannot be used from here."""
+        self.cell.move_to(Waypoint(move.waypoint.index, move.waypoint.label, joints=move.joints))
+
+    def capture(self) -> Capture:
+        frame, truth = self.cell.capture()
+        return Capture(frame, true_T_base_flange=truth.T_base_flange, true_joints=truth.joints)
+
+    def close(self) -> None:
+        self.cell.close()
