@@ -2,7 +2,8 @@
 
 This is the same small interface the real cell offers (hardware/), so a
 calibration session cannot tell them apart. The simulator also knows the
-truth: true joint angles and flange pose per frame, the mount and the board pose.
+truth: true joint angles and flange pose per frame, the mount and the board pose, and with
+model errors (sim.model_errors) the true kinematics, camera and printed board.
 """
 
 from __future__ import annotations
@@ -13,12 +14,14 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from estimator.geometry.camera import project_points
+from estimator.geometry.camera import project
 from estimator.geometry.kinematics import IK_RESTARTS, forward, solve_ik
 from estimator.geometry.transforms import invert
 from estimator.geometry.waypoints import Waypoint, WaypointRejected
 from estimator.io.dataset import Frame, GroundTruth
+from sim.model_errors import draw_true_cell, reported_intrinsics
 from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
+from sim.real_camera import RealCamera
 from sim.render import RGBDRenderer
 from sim.scenario import Scenario
 from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
@@ -45,16 +48,21 @@ class SimCell:
     ) -> None:
         self.scenario = scenario
         self.rng = rng
-        self.intrinsics = scenario.camera.intrinsics()
+        self.intrinsics = reported_intrinsics(scenario)
         self.board = scenario.board_definition()
+        self.true = draw_true_cell(scenario, self.board, rng)
+        self.camera = RealCamera(scenario, self.true)
         self.cell = build_cell(
             scenario.robot,
             scenario.mount.transform(),
-            self.intrinsics,
+            self.camera.render_intrinsics,
             self.board,
             scenario.board.transform(),
             depth_sensor=depth_sensor,
+            kinematics=self.true.kinematics,
+            printed_board=self.true.board,
         )
+        self._true_corners = self.true.board.true_corners().reshape(-1, 3)
         self.depth_sensor = depth_sensor
         self._depth_renderer: RGBDRenderer | None = None
         self.model = self.cell.model
@@ -70,7 +78,8 @@ class SimCell:
     @property
     def renderer(self) -> RGBDRenderer:
         if self._renderer is None:
-            self._renderer = RGBDRenderer(self.model, self.intrinsics.width, self.intrinsics.height)
+            k = self.camera.render_intrinsics
+            self._renderer = RGBDRenderer(self.model, k.width, k.height)
         return self._renderer
 
     def close(self) -> None:
@@ -99,19 +108,37 @@ class SimCell:
         raise WaypointRejected(problem)
 
     def flange_pose(self) -> np.ndarray:
-        """Reported T_base_flange (4, 4): the true pose with the robot pose noise."""
-        return perturb_flange_pose(self.true_flange_pose(), self.scenario.noise.robot_pose, self.rng)
+        """Reported T_base_flange (4, 4): the nominal kinematics of the measured joints, with the
+        robot pose noise (without arm errors: the true pose with the robot pose noise)."""
+        return self._reported_pose_and_joints()[0]
+
+    def _reported_pose_and_joints(self) -> tuple[np.ndarray, np.ndarray]:
+        """What the controller reports: T_base_flange (4, 4) and the joints (6,) it read."""
+        arm = self.scenario.errors.arm
+        joints = self.joints.copy()
+        if arm.enabled:
+            if arm.encoder_sigma_deg > 0:
+                joints = joints + np.radians(arm.encoder_sigma_deg) * self.rng.standard_normal(6)
+            T_base_flange = forward(self.cell.kinematics, joints)
+        else:
+            T_base_flange = self.true_flange_pose()
+        return perturb_flange_pose(T_base_flange, self.scenario.noise.robot_pose, self.rng), joints
 
     def capture(self) -> tuple[Frame, FrameTruth]:
         """Render and apply the sensor models. Returns the frame and its ground truth."""
-        rgb, depth_true = self.render_true()
+        rgb, depth_true = self.camera.view(*self.render_true(), self.rng)
+        T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
         noise = self.scenario.noise
+        rgb = apply_rgb_models(self.camera.light(rgb, T_cam_board, self.rng), noise.rgb, self.rng)
+        k = self.camera.intrinsics
+        depth = apply_depth_models(depth_true, k, noise, self.rng, self.camera.depth_correlation_px())
+        T_base_flange, joints = self._reported_pose_and_joints()
         frame = Frame(
-            rgb=apply_rgb_models(rgb, noise.rgb, self.rng),
-            depth_m=apply_depth_models(depth_true, self.intrinsics, noise, self.rng),
+            rgb=rgb,
+            depth_m=self.camera.holes(depth, self.rng),
             intrinsics=self.intrinsics,
-            T_base_flange=self.flange_pose(),
-            joints=self.joints.copy(),
+            T_base_flange=T_base_flange,
+            joints=joints,
             time_s=self.time_s,
         )
         return frame, FrameTruth(self.true_flange_pose(), self.joints.copy())
@@ -119,11 +146,13 @@ class SimCell:
     # --- ground truth and checks ---------------------------------------------------------
 
     def ground_truth(self) -> GroundTruth:
-        """The mount and board poses, with empty per-frame lists to fill as frames are taken."""
-        return GroundTruth(self.cell.T_flange_cam, self.cell.T_base_board, self.cell.T_world_base)
+        """The mount and board poses (and the true cell when the scenario has model errors),
+        with empty per-frame lists to fill as frames are taken."""
+        errors = self.true.to_dict() if self.scenario.errors.any_enabled() else None
+        return GroundTruth(self.cell.T_flange_cam, self.cell.T_base_board, self.cell.T_world_base, errors)
 
     def true_flange_pose(self) -> np.ndarray:
-        return forward(self.cell.kinematics, self.joints)
+        return forward(self.cell.true_kinematics, self.joints)
 
     def T_base_cam(self) -> np.ndarray:
         return self.true_flange_pose() @ self.cell.T_flange_cam
@@ -147,7 +176,7 @@ class SimCell:
         within the allowed angle and is not hidden; else the reason."""
         settings = self.scenario.trajectory
         T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
-        corners = self.board.all_corners().reshape(-1, 3)
+        corners = self._true_corners
         p_cam = corners @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
         if np.any(p_cam[:, 2] <= 0.05):
             return "the board is behind the camera or closer than 5 cm"
@@ -157,9 +186,9 @@ class SimCell:
         if worst > settings.max_view_angle_deg:
             limit = settings.max_view_angle_deg
             return f"the board is seen at {worst:.0f} degrees, more than max_view_angle_deg {limit:g}"
-        uv = project_points(T_cam_board, corners, self.intrinsics.K)
+        k = self.camera.intrinsics
+        uv = project(T_cam_board, corners, k)
         m = settings.margin_px
-        k = self.intrinsics
         outside = (
             (uv[:, 0] < m - 0.5)
             | (uv[:, 0] > k.width - 0.5 - m)
@@ -211,7 +240,8 @@ class SimCell:
         """Put the arm at joint angles q (6,), radians, without any check (the loopback
         RTDE controller in tests drives the arm this way)."""
         self.joints = np.array(q, dtype=float)
-        self.data.qpos[self._qpos] = self.joints
+        offsets = self.cell.true_kinematics.theta_offset
+        self.data.qpos[self._qpos] = self.joints + offsets if any(offsets) else self.joints
         mujoco.mj_forward(self.model, self.data)
 
     def _ik_candidates(self, waypoint: Waypoint) -> Iterator[np.ndarray]:

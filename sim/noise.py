@@ -20,6 +20,7 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.io.dataset import decode_depth, encode_depth
 from estimator.observe.depth import DepthNoiseModel
 from estimator.solve.problem import RobotPoseNoise as RobotPoseNoiseModel
+from sim.depth_errors import correlated_unit_noise
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
@@ -93,12 +94,17 @@ def _grazing_mask(
 
 
 def apply_depth_models(
-    depth_true_m: np.ndarray, intrinsics: CameraIntrinsics, noise: NoiseSettings, rng: np.random.Generator
+    depth_true_m: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    noise: NoiseSettings,
+    rng: np.random.Generator,
+    correlation_px: float = 1.0,
 ) -> np.ndarray:
     """The measured depth image from the true one.
 
     depth_true_m: (H, W) depth along the optical axis, metres; values <= 0, non-finite
     or > MAX_RANGE_M (e.g. the far plane) are invalid. intrinsics: the depth image's camera.
+    correlation_px: the 1/e correlation length of the noise (1: independent pixels).
     Returns (H, W) float32 metres, 0.0 = invalid. Applied in order: bias, Gaussian noise
     with sigma(z_true), invalidation (grazing angle from the true depth, random dropout),
     quantisation to multiples of depth_scale_m (what does not fit a uint16 becomes 0).
@@ -120,7 +126,11 @@ def apply_depth_models(
         z = bias.scale * z + bias.offset_m
 
     if noise.depth.enabled:
-        z = z + depth_sigma(z_true, noise.depth) * rng.standard_normal(z.shape, dtype=np.float32)
+        if correlation_px > 1.0:
+            unit = correlated_unit_noise(z.shape, correlation_px, rng)
+        else:
+            unit = rng.standard_normal(z.shape, dtype=np.float32)
+        z = z + depth_sigma(z_true, noise.depth) * unit
 
     invalid = noise.invalid_depth
     if invalid.enabled:
@@ -141,13 +151,14 @@ def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generat
     """The measured colour image: Gaussian blur (sigma blur_sigma_px, pixels), then additive
     Gaussian noise (std sigma, grey levels), rounded and clipped to 0..255.
 
-    rgb: (H, W, 3) uint8. Returns a new (H, W, 3) uint8 array (an unchanged copy when disabled).
+    rgb: (H, W, 3) uint8, or float32 grey levels (unclipped, as sim.real_camera lights it).
+    Returns a new (H, W, 3) uint8 array (unchanged but rounded and clipped when disabled).
     """
     rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-        raise ValueError(f"rgb must be (H, W, 3) uint8, got shape {rgb.shape} dtype {rgb.dtype}")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype not in (np.uint8, np.float32):
+        raise ValueError(f"rgb must be (H, W, 3) uint8 or float32, got shape {rgb.shape} dtype {rgb.dtype}")
     if not settings.enabled:
-        return rgb.copy()
+        return rgb.copy() if rgb.dtype == np.uint8 else np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
     img = rgb.astype(np.float32)
     if settings.blur_sigma_px > 0.0:
         img = cv2.GaussianBlur(

@@ -147,6 +147,108 @@ class NoiseSettings(Section):
         )
 
 
+Coefficients = tuple[float, float, float, float, float]
+
+
+class ArmErrors(Section):
+    """The arm moves with true kinematics that differ from the nominal DH model it reports with:
+    per-joint zero offsets, link lengths (every DH a and d) and twists (alpha), each drawn once
+    from N(0, sigma^2). The reported flange pose is the nominal forward kinematics of the
+    measured joints, which carry encoder noise N(0, encoder_sigma_deg^2) per frame."""
+
+    enabled: bool = False
+    joint_offset_sigma_deg: float = Field(0.08, ge=0)
+    link_length_sigma_m: float = Field(3e-4, ge=0)
+    twist_sigma_deg: float = Field(0.08, ge=0)
+    encoder_sigma_deg: float = Field(6e-4, ge=0)
+
+
+class IntrinsicsErrors(Section):
+    """The camera renders with a true K that differs from the K reported in the dataset (the
+    [camera] section): focal lengths scaled by 1 + N(0, focal_sigma_fraction^2) each, the
+    principal point moved by N(0, principal_point_sigma_px^2) per axis, drawn once."""
+
+    enabled: bool = False
+    focal_sigma_fraction: float = Field(0.003, ge=0, lt=0.2)
+    principal_point_sigma_px: float = Field(3.0, ge=0)
+
+
+class LensErrors(Section):
+    """The image carries Brown-Conrady distortion (OpenCV's k1, k2, p1, p2, k3) with the true
+    coefficients; the dataset reports the "factory" ones."""
+
+    enabled: bool = False
+    true_coefficients: Coefficients = (0.13, -0.30, 0.0, 0.0, 0.0)
+    reported_coefficients: Coefficients = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class DepthErrors(Section):
+    """Depth errors beyond white noise and bias (noise.depth, noise.depth_bias): the noise is
+    spatially correlated over correlation_px (the 1/e length of its autocorrelation; 1 =
+    independent pixels), the depth imager's true pose relative to the colour camera is off by
+    N(0, sigma^2) per axis (depth misregistered to colour), pixels at depth edges take mixed
+    depths (flying pixels) and blobs of pixels have no depth (holes)."""
+
+    enabled: bool = False
+    correlation_px: float = Field(2.5, ge=1.0, le=50.0)
+    registration_translation_sigma_m: float = Field(5e-4, ge=0)
+    registration_rotation_sigma_deg: float = Field(0.1, ge=0)
+    flying_pixel_probability: float = Field(0.5, ge=0, le=1)
+    flying_pixel_width_px: int = Field(1, ge=1, le=5)
+    flying_pixel_edge_m: float = Field(0.02, gt=0)
+    holes_per_megapixel: float = Field(30.0, ge=0)
+    hole_radius_px: float = Field(3.0, gt=0)
+
+
+class BoardErrors(Section):
+    """The printed board differs from its definition: scaled by 1 + scale_error along the
+    board's x and y, bent (the sheet's centre bend_m above its edges along x and y, z = bx (1 -
+    u^2) + by (1 - v^2) with u, v in [-1, 1] across the sheet) and each marker moved by
+    N(0, marker_placement_sigma_m^2) per axis (drawn once)."""
+
+    enabled: bool = False
+    scale_error: tuple[float, float] = (0.003, 0.001)
+    bend_m: tuple[float, float] = (0.0007, 0.0)
+    marker_placement_sigma_m: float = Field(5e-5, ge=0)
+
+
+class ImageErrors(Section):
+    """What a real camera and room add to the colour image: vignetting (corners
+    vignetting_corner_falloff darker than the centre), a linear light gradient (one side
+    light_gradient brighter than the other, toward light_gradient_direction_deg in the image, 0 =
+    right, 90 = down), a specular highlight of a lamp at light_position_board_m (board frame) on
+    the glossy print, per-view exposure gain 1 + N(0, exposure_sigma^2), and motion blur of an
+    arm that has not fully settled (camera speed N(0, motion_speed_sigma_m_s^2) and rate
+    N(0, motion_rate_sigma_deg_s^2) per axis during exposure_time_s)."""
+
+    enabled: bool = False
+    vignetting_corner_falloff: float = Field(0.2, ge=0, lt=1)
+    light_gradient: float = Field(0.15, ge=0, lt=2)
+    light_gradient_direction_deg: float = 30.0
+    light_position_board_m: Vector3 = (0.1, 0.3, 1.5)
+    highlight_peak_grey: float = Field(60.0, ge=0)
+    highlight_radius_px: float = Field(20.0, gt=0)
+    exposure_sigma: float = Field(0.03, ge=0, lt=0.5)
+    motion_speed_sigma_m_s: float = Field(0.005, ge=0)
+    motion_rate_sigma_deg_s: float = Field(0.5, ge=0)
+    exposure_time_s: float = Field(0.015, gt=0, lt=1)
+
+
+class ModelErrors(Section):
+    """The ways a real cell differs from the model the estimators assume. All off by default
+    (the ideal cell); models/scenarios/realistic.toml switches them on at a real cell's size."""
+
+    arm: ArmErrors = ArmErrors()
+    intrinsics: IntrinsicsErrors = IntrinsicsErrors()
+    lens: LensErrors = LensErrors()
+    depth: DepthErrors = DepthErrors()
+    board: BoardErrors = BoardErrors()
+    image: ImageErrors = ImageErrors()
+
+    def any_enabled(self) -> bool:
+        return any(getattr(self, name).enabled for name in ModelErrors.model_fields)
+
+
 class TrajectorySettings(Section):
     """Where the arm goes.
 
@@ -177,6 +279,7 @@ class Scenario(Section):
     board: BoardSettings = BoardSettings()
     noise: NoiseSettings = NoiseSettings()
     trajectory: TrajectorySettings = TrajectorySettings()
+    errors: ModelErrors = ModelErrors()
     # Folder that relative paths in the file (board definition, waypoints) are read from.
     base_dir: str = Field(".", exclude=True)
 
@@ -188,7 +291,12 @@ class Scenario(Section):
         return None if self.trajectory.file is None else Path(self.base_dir) / self.trajectory.file
 
     def to_dict(self) -> dict:
-        return self.model_dump(mode="json")
+        """The settings as plain JSON values. Without model errors (the ideal cell) the 'errors'
+        table is left out, so datasets of the ideal cell read as they did before it existed."""
+        data = self.model_dump(mode="json")
+        if self.errors == ModelErrors():
+            del data["errors"]
+        return data
 
 
 def load_scenario(path: str | Path | None) -> Scenario:

@@ -21,14 +21,29 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.kinematics import ROBOTS, URKinematics
+from estimator.geometry.lie import so3_exp
 from estimator.geometry.transforms import invert, make_transform, xyz_quat_from_transform
 from estimator.io.models import models_dir
 from estimator.targets.board import BoardDefinition, board_image
+from sim.model_errors import PrintedBoard
 
 CAMERA_NAME = "hec_camera"
 DEPTH_SENSOR_NAME = "hec_depth_sensor"
 BOARD_GEOM = "board_sheet"
 ARM_PREFIX = "arm/"
+# The arm's link bodies in DH order: link i turns about its z with joint i, link i + 1 (the
+# flange after the last) sits at its DH offset transz(d_i) transx(a_i) rotx(alpha_i).
+ARM_LINKS = (
+    "shoulder_link",
+    "upper_arm_link",
+    "forearm_link",
+    "wrist_1_link",
+    "wrist_2_link",
+    "wrist_3_link",
+    "flange",
+)
+# Sheet mesh resolution when the board is bent (vertices along x and y).
+BENT_SHEET_GRID = (41, 23)
 # Rotation taking OpenCV's camera axes to MuJoCo's (x right, y up, looking along -z).
 R_CAM_MJCAM = np.diag([1.0, -1.0, -1.0])
 BOARD_TEXTURE_PX_PER_M = 4000.0
@@ -50,7 +65,10 @@ class DepthSensor:
 
 @dataclass
 class CellModel:
-    """A compiled cell and the frames it was built with (all SI units)."""
+    """A compiled cell and the frames it was built with (all SI units). kinematics: the robot's
+    nominal model (what its controller computes with); true_kinematics: what the rendered arm
+    does (the same unless the scenario has arm errors; MuJoCo's joint i is at q[i] +
+    true_kinematics.theta_offset[i])."""
 
     model: mujoco.MjModel
     kinematics: URKinematics
@@ -59,6 +77,7 @@ class CellModel:
     T_flange_cam: np.ndarray
     intrinsics: CameraIntrinsics
     board: BoardDefinition
+    true_kinematics: URKinematics
 
     @property
     def T_world_board(self) -> np.ndarray:
@@ -87,6 +106,8 @@ def build_cell(
     T_base_board: np.ndarray,
     offscreen_size: tuple[int, int] = (1280, 960),
     depth_sensor: DepthSensor | None = None,
+    kinematics: URKinematics | None = None,
+    printed_board: PrintedBoard | None = None,
 ) -> CellModel:
     """Compile the cell for one scenario.
 
@@ -95,12 +116,17 @@ def build_cell(
     offscreen_size: largest (width, height) rendered, at least the camera's.
     depth_sensor: an optional second camera, rigidly beside the colour camera,
     named DEPTH_SENSOR_NAME (an RGB-D camera whose depth imager is not the colour one).
+    kinematics: the arm's true kinematics when they differ from the robot's nominal DH model
+    (link bodies placed by its DH table; its joint offsets are applied to qpos, see
+    CellModel.kinematics). printed_board: the board as printed, when not exactly as defined.
     """
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; choose one of {sorted(ROBOTS)}")
     root = models_dir()
     spec = mujoco.MjSpec.from_file(str(root / "cell.xml"))
     arm = mujoco.MjSpec.from_file(str(root / f"{robot}.xml"))
+    if kinematics is not None and kinematics != ROBOTS[robot]:
+        _place_links(arm, kinematics)
     spec.attach(arm, site=spec.site("arm_mount"), prefix=ARM_PREFIX)
     views = [intrinsics] + ([depth_sensor.intrinsics] if depth_sensor is not None else [])
     spec.visual.global_.offwidth = max(offscreen_size[0], *(k.width for k in views))
@@ -112,9 +138,21 @@ def build_cell(
             spec.body("camera_body"), DEPTH_SENSOR_NAME, depth_sensor.T_cam_depth, depth_sensor.intrinsics
         )
     T_world_base = _site_pose(spec, "arm_mount")
-    _add_board(spec, board, T_world_base @ T_base_board)
+    _add_board(spec, printed_board or PrintedBoard(board), T_world_base @ T_base_board)
     model = spec.compile()
-    return CellModel(model, ROBOTS[robot], T_world_base, T_base_board, T_flange_cam, intrinsics, board)
+    true_kinematics = kinematics or ROBOTS[robot]
+    return CellModel(
+        model, ROBOTS[robot], T_world_base, T_base_board, T_flange_cam, intrinsics, board, true_kinematics
+    )
+
+
+def _place_links(arm: mujoco.MjSpec, kinematics: URKinematics) -> None:
+    """Put each link body of the arm's MJCF at the DH offset of the table (d, a, alpha)."""
+    for i, child in enumerate(ARM_LINKS[1:]):
+        body = arm.body(child)
+        step = make_transform(so3_exp(np.array([kinematics.alpha[i], 0.0, 0.0])), np.zeros(3))
+        step[:3, 3] = (kinematics.a[i], 0.0, kinematics.d[i])
+        _set_pose(body, step)
 
 
 def _site_pose(spec: mujoco.MjSpec, name: str) -> np.ndarray:
@@ -167,8 +205,10 @@ def _add_view(body: mujoco.MjsBody, name: str, T_body_cam: np.ndarray, k: Camera
     camera.sensor_size = [k.width * 3e-6, k.height * 3e-6]
 
 
-def _add_board(spec: mujoco.MjSpec, board: BoardDefinition, T_world_board: np.ndarray) -> None:
-    """The printed sheet as a textured quad at z = 0 of the board frame, on a backing plate."""
+def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.ndarray) -> None:
+    """The printed sheet as a textured mesh at z = 0 of the board frame (a quad, or a grid when
+    it is scaled or bent), on a backing plate."""
+    board = printed.printed
     # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
     # inside 8 bits and the camera's noise is not clipped away.
     coverage = board_image(board, BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
@@ -184,11 +224,14 @@ def _add_board(spec: mujoco.MjSpec, board: BoardDefinition, T_world_board: np.nd
     spec.add_material(name="board", textures=["", "board"], specular=0.0, shininess=0.0)
     w, h = board.size_m
     mesh = spec.add_mesh(name="board_sheet")
-    # Corners: top-left, bottom-left, bottom-right, top-right (board frame, x right, y up).
-    mesh.uservert = [-w / 2, h / 2, 0, -w / 2, -h / 2, 0, w / 2, -h / 2, 0, w / 2, h / 2, 0]
-    # Texture row 0 (the sheet's top edge) sits at v = 0.
-    mesh.usertexcoord = [0, 0, 0, 1, 1, 1, 1, 0]
-    mesh.userface = [1, 2, 3, 1, 3, 0]
+    if printed.is_exact:
+        # Corners: top-left, bottom-left, bottom-right, top-right (board frame, x right, y up).
+        mesh.uservert = [-w / 2, h / 2, 0, -w / 2, -h / 2, 0, w / 2, -h / 2, 0, w / 2, h / 2, 0]
+        # Texture row 0 (the sheet's top edge) sits at v = 0.
+        mesh.usertexcoord = [0, 0, 0, 1, 1, 1, 1, 0]
+        mesh.userface = [1, 2, 3, 1, 3, 0]
+    else:
+        mesh.uservert, mesh.usertexcoord, mesh.userface = _sheet_grid(printed)
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
     body = spec.worldbody.add_body(name="board")
     _set_pose(body, T_world_board)
@@ -200,18 +243,39 @@ def _add_board(spec: mujoco.MjSpec, board: BoardDefinition, T_world_board: np.nd
         contype=0,
         conaffinity=0,
     )
-    # Backing plate 2 mm thick, 1 mm below the sheet: no face is coplanar with the print.
+    # Backing plate 2 mm thick, 1 mm below the sheet's lowest point: no face is coplanar with
+    # the print.
+    lowest = min(0.0, printed.bend_m[0]) + min(0.0, printed.bend_m[1])
+    sx, sy = printed.scale
     body.add_geom(
         name="board_plate",
         type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[w / 2, h / 2, 0.001],
-        pos=[0.0, 0.0, -0.002],
+        size=[w * sx / 2, h * sy / 2, 0.001],
+        pos=[0.0, 0.0, lowest - 0.002],
         rgba=[0.9, 0.9, 0.88, 1.0],
         contype=0,
         conaffinity=1,
     )
     if T_world_board[2, 2] > np.cos(np.radians(5.0)):
         _add_table(spec, T_world_board[:3, 3] - [0.0, 0.0, 0.003])
+
+
+def _sheet_grid(printed: PrintedBoard) -> tuple[list[float], list[float], list[int]]:
+    """Vertices, texture coordinates and faces of the printed sheet as a BENT_SHEET_GRID mesh,
+    each vertex where PrintedBoard.to_board_frame puts the printed point."""
+    w, h = printed.printed.size_m
+    nx, ny = BENT_SHEET_GRID
+    x, y = np.meshgrid(np.linspace(-w / 2, w / 2, nx), np.linspace(h / 2, -h / 2, ny))
+    flat = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    vertices = printed.to_board_frame(flat)
+    texcoords = np.column_stack([(flat[:, 0] + w / 2) / w, (h / 2 - flat[:, 1]) / h])
+    faces = []
+    for r in range(ny - 1):  # row r is above row r + 1
+        for c in range(nx - 1):
+            tl, tr = r * nx + c, r * nx + c + 1
+            bl, br = tl + nx, tr + nx
+            faces += [bl, br, tr, bl, tr, tl]  # counter-clockwise seen from +z, as the quad's
+    return vertices.ravel().tolist(), texcoords.ravel().tolist(), faces
 
 
 def _add_table(spec: mujoco.MjSpec, top_centre_world: np.ndarray) -> None:

@@ -82,6 +82,21 @@ def project_points(T_cam_board: np.ndarray, p_board: np.ndarray, K: np.ndarray) 
     return uvw[:, :2] / uvw[:, 2:3]
 
 
+def project(T_cam_x: np.ndarray, p_x: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
+    """Project points through the camera, lens distortion included.
+
+    T_cam_x: (4, 4) pose of frame x in the camera frame. p_x: (N, 3) points in frame x, metres
+    (in front of the camera). Returns (N, 2) pixel coordinates (u right, v down).
+    """
+    p_cam = p_x @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
+    xy = p_cam[:, :2] / p_cam[:, 2:3]
+    if any(intrinsics.dist):
+        xy = distort_normalized(xy, intrinsics.dist)[0]
+    return np.column_stack(
+        [intrinsics.fx * xy[:, 0] + intrinsics.cx, intrinsics.fy * xy[:, 1] + intrinsics.cy]
+    )
+
+
 UNDISTORT_ITERATIONS = 30
 
 

@@ -15,7 +15,9 @@ from scipy.spatial.transform import Rotation
 
 @dataclass(frozen=True)
 class URKinematics:
-    """Classic DH table (d, a, alpha per joint; metres, radians) and joint limits."""
+    """Classic DH table (d, a, alpha per joint; metres, radians), joint limits, and joint zero
+    offsets (radians; the DH angle of joint i is q[i] + theta_offset[i], zero for UR's nominal
+    model, non-zero for an arm whose true kinematics differ from it)."""
 
     name: str
     d: tuple[float, ...]
@@ -23,6 +25,7 @@ class URKinematics:
     alpha: tuple[float, ...]
     q_lower: tuple[float, ...]
     q_upper: tuple[float, ...]
+    theta_offset: tuple[float, ...] = (0.0,) * 6
 
 
 _HALF_PI = np.pi / 2
@@ -52,7 +55,8 @@ def dh_frames(kin: URKinematics, q: np.ndarray) -> np.ndarray:
     frames = np.empty((7, 4, 4))
     frames[0] = np.eye(4)
     for i in range(6):
-        ct, st = np.cos(q[i]), np.sin(q[i])
+        theta = q[i] + kin.theta_offset[i] if kin.theta_offset[i] else q[i]  # nominal: q exactly
+        ct, st = np.cos(theta), np.sin(theta)
         ca, sa = np.cos(kin.alpha[i]), np.sin(kin.alpha[i])
         step = np.array(
             [

@@ -103,11 +103,14 @@ class Capture:
 
 @dataclass
 class GroundTruth:
-    """Simulation truth: the mount, the board pose and per-frame true flange poses."""
+    """Simulation truth: the mount, the board pose and per-frame true flange poses. model_errors:
+    the true cell where it differs from what the dataset reports (true kinematics, intrinsics,
+    depth registration, printed board; sim.model_errors.TrueCell.to_dict), or None."""
 
     T_flange_cam: np.ndarray
     T_base_board: np.ndarray
     T_world_base: np.ndarray
+    model_errors: dict | None = None
     T_base_flange: list[np.ndarray] = field(default_factory=list)
     joints: list[np.ndarray] = field(default_factory=list)
 
@@ -317,7 +320,7 @@ def _write_frame_files(
 
 
 def _ground_truth_dict(truth: GroundTruth) -> dict:
-    return {
+    data = {
         "T_flange_cam": _matrix(truth.T_flange_cam),
         "T_base_board": _matrix(truth.T_base_board),
         "T_world_base": _matrix(truth.T_world_base),
@@ -326,6 +329,9 @@ def _ground_truth_dict(truth: GroundTruth) -> dict:
             for i, (T, q) in enumerate(zip(truth.T_base_flange, truth.joints, strict=True))
         ],
     }
+    if truth.model_errors is not None:
+        data["model_errors"] = truth.model_errors
+    return data
 
 
 def _metadata(
@@ -456,6 +462,7 @@ def _read_ground_truth(path: Path) -> GroundTruth:
             np.array(gt["T_flange_cam"]),
             np.array(gt["T_base_board"]),
             np.array(gt["T_world_base"]),
+            gt.get("model_errors"),
             [np.array(f["T_base_flange"]) for f in gt["frames"]],
             [np.array(f["joints_rad"]) for f in gt["frames"]],
         )
