@@ -1,7 +1,10 @@
-"""Benchmark: time to simulate one waypoint (IK + checks, RGB + depth render, sensor noise) at 640x480.
+"""Benchmark: time to simulate one waypoint at 640x480, the default (ideal) scenario beside the realistic
+one (models/scenarios/realistic.toml, every model error on).
 
 Run: .venv/bin/python -m experiments.bench.render [--rounds N]
-Prints the median and 90th percentile per stage over the default trajectory.
+Prints the median and 90th percentile per part over the default trajectory for each scenario: IK +
+checks, the RGB + depth render, the real camera (lens, depth misregistration, flying pixels, holes,
+image effects; nothing for the ideal cell) and the sensor noise; then realistic / default per part.
 """
 
 from __future__ import annotations
@@ -12,40 +15,73 @@ import time
 import numpy as np
 
 import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
+from estimator.geometry.transforms import invert
+from estimator.geometry.waypoints import WaypointRejected
+from estimator.io.models import models_dir
 from sim.cell import SimCell
 from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
-from sim.scenario import Scenario
+from sim.scenario import Scenario, load_scenario
 from sim.simulate import scenario_waypoints
+
+PARTS = ("ik+checks", "render", "real camera", "noise", "total")
+
+
+def time_scenario(scenario: Scenario, rounds: int) -> dict[str, list[float]]:
+    """Milliseconds per part for every captured waypoint, the steps of SimCell.capture timed apart."""
+    rng = np.random.default_rng(0)
+    cell = SimCell(scenario, rng)
+    camera, noise = cell.camera, scenario.noise
+    waypoints = scenario_waypoints(scenario)
+    cell.render_true()  # warm-up: GL context and texture upload
+    times: dict[str, list[float]] = {name: [] for name in PARTS}
+    for _ in range(rounds):
+        for waypoint in waypoints:
+            t0 = time.perf_counter()
+            try:
+                cell.move_to(waypoint)
+            except WaypointRejected:
+                continue
+            t1 = time.perf_counter()
+            rgb, depth = cell.render_true()
+            t2 = time.perf_counter()
+            T_cam_board = invert(cell.T_base_cam()) @ cell.cell.T_base_board
+            rgb, depth = camera.view(rgb, depth, rng)
+            rgb = camera.light(rgb, T_cam_board, rng)
+            t3 = time.perf_counter()
+            apply_rgb_models(rgb, noise.rgb, rng)
+            depth = apply_depth_models(depth, camera.intrinsics, noise, rng, camera.depth_correlation_px())
+            perturb_flange_pose(cell.true_flange_pose(), noise.robot_pose, rng)
+            t4 = time.perf_counter()
+            camera.holes(depth, rng)  # a real-camera effect, applied after the noise
+            t5 = time.perf_counter()
+            parts = (t1 - t0, t2 - t1, t3 - t2 + t5 - t4, t4 - t3, t5 - t0)
+            for name, dt in zip(PARTS, parts, strict=True):
+                times[name].append(dt * 1000)
+    cell.close()
+    return times
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5, help="passes over the default trajectory")
     args = parser.parse_args(argv)
-    scenario = Scenario()
-    rng = np.random.default_rng(0)
-    cell = SimCell(scenario, rng)
-    waypoints = scenario_waypoints(scenario)
-    cell.render_true()  # warm-up: GL context and texture upload
-    stages: dict[str, list[float]] = {"ik+checks": [], "render": [], "noise": [], "total": []}
-    for _ in range(args.rounds):
-        for waypoint in waypoints:
-            t0 = time.perf_counter()
-            cell.move_to(waypoint)
-            t1 = time.perf_counter()
-            rgb, depth = cell.render_true()
-            t2 = time.perf_counter()
-            apply_rgb_models(rgb, scenario.noise.rgb, rng)
-            apply_depth_models(depth, cell.intrinsics, scenario.noise, rng)
-            perturb_flange_pose(cell.true_flange_pose(), scenario.noise.robot_pose, rng)
-            t3 = time.perf_counter()
-            for name, dt in zip(stages, (t1 - t0, t2 - t1, t3 - t2, t3 - t0), strict=True):
-                stages[name].append(dt * 1000)
-    cell.close()
-    k = cell.intrinsics
-    print(f"per waypoint at {k.width}x{k.height}, {len(stages['total'])} waypoints:")
-    for name, times in stages.items():
-        print(f"  {name:10s} median {np.median(times):6.1f} ms   p90 {np.percentile(times, 90):6.1f} ms")
+    scenarios = {
+        "default": Scenario(),
+        "realistic": load_scenario(models_dir() / "scenarios" / "realistic.toml"),
+    }
+    results = {name: time_scenario(s, args.rounds) for name, s in scenarios.items()}
+    k = scenarios["default"].camera
+    views = ", ".join(f"{name} {len(r['total'])}" for name, r in results.items())
+    print(f"ms per waypoint at {k.width}x{k.height} ({views} waypoints), median (p90):")
+    print(f"  {'part':12s}{'default':>16s}{'realistic':>16s}   realistic / default")
+    for part in PARTS:
+        d, r = results["default"][part], results["realistic"][part]
+        ratio = f"{np.median(r) / np.median(d):5.2f}x" if np.median(d) >= 1.0 else "    -"
+        print(f"  {part:12s}{_cell(d)}{_cell(r)}   {ratio}")
+
+
+def _cell(times_ms: list[float]) -> str:
+    return f"{np.median(times_ms):8.1f} ({np.percentile(times_ms, 90):5.1f})"
 
 
 if __name__ == "__main__":

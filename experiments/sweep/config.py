@@ -32,11 +32,14 @@ from typing import Any
 
 from estimator.io.tomlfile import read_toml
 from experiments.sweep.parameters import (
+    ERROR_SOURCES,
     FIDELITIES,
     FULL_VIEWS,
     MEASUREMENTS,
     PARAMETERS,
     TRAJECTORIES,
+    error_source_set,
+    error_sources_name,
     parameter_columns,
 )
 from sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
@@ -64,6 +67,9 @@ def scenario_defaults(scenario: Scenario) -> dict[str, Any]:
         "robot_rotation_sigma_deg": robot.rotation_sigma_deg if robot.enabled else 0.0,
         "waypoints": None,
         "trajectory": kind if kind in TRAJECTORIES else "rotation-rich",
+        "error_sources": error_sources_name(
+            tuple(n for n in ERROR_SOURCES if getattr(scenario.errors, n).enabled)
+        ),
         "mount": "fixed",
     }
 
@@ -90,6 +96,10 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
         on = rgb.get("enabled", True) or params["rgb_sigma_grey"] > 0
         noise["rgb"] = {**rgb, "enabled": on, "sigma": params["rgb_sigma_grey"]}
     data["noise"] = noise
+    if "error_sources" in params:
+        on = error_source_set(params["error_sources"])
+        errors = {k: dict(v) for k, v in data.get("errors", {}).items()}
+        data["errors"] = {n: {**errors.get(n, {}), "enabled": n in on} for n in ERROR_SOURCES}
     return scenario_from_dict(data, source=source, base_dir=Path(base_dir))
 
 

@@ -10,25 +10,45 @@ from typing import Any
 from estimator.geometry.waypoints import PAPER_OFFSETS_M, ROTATION_RICH_VIEWS_DEG
 
 MEASUREMENTS, RENDER = "measurements", "render"
-
-
 FIDELITIES = (MEASUREMENTS, RENDER)
-
-
 BOTH = FIDELITIES
-
-
 TRAJECTORIES = ("rotation-rich", "paper", "random")
-
-
 MOUNTS = ("fixed", "random")
-
-
 # Views of the full trajectories; a random trajectory has as many as the rotation-rich one by default.
 FULL_VIEWS = {"rotation-rich": len(ROTATION_RICH_VIEWS_DEG), "paper": len(PAPER_OFFSETS_M), "random": 17}
-
-
 MIN_WAYPOINTS = 3
+# The model-error sections of a scenario (sim.scenario.ModelErrors) an error_sources value names.
+ERROR_SOURCES = ("arm", "intrinsics", "lens", "depth", "board", "image")
+
+
+def error_source_set(value: str) -> tuple[str, ...]:
+    """The sections an error_sources value switches on: "none", "all", or names joined by "+"
+    ("arm+depth"), in ERROR_SOURCES order; ValueError for anything else."""
+    if value == "none":
+        return ()
+    if value == "all":
+        return ERROR_SOURCES
+    names = value.split("+")
+    if not names or any(n not in ERROR_SOURCES for n in names):
+        raise ValueError(f"unknown error source in {value!r}")
+    return tuple(n for n in ERROR_SOURCES if n in names)
+
+
+def error_sources_name(enabled: tuple[str, ...]) -> str:
+    """The error_sources value of a set of enabled sections."""
+    if not enabled:
+        return "none"
+    return "all" if set(enabled) == set(ERROR_SOURCES) else "+".join(n for n in ERROR_SOURCES if n in enabled)
+
+
+def _valid_error_sources(value: Any) -> bool:
+    if not isinstance(value, str):
+        return False
+    try:
+        error_source_set(value)
+    except ValueError:
+        return False
+    return True
 
 
 def _is_number(v: Any) -> bool:
@@ -104,6 +124,15 @@ PARAMETERS: dict[str, Parameter] = {
             lambda v: v in TRAJECTORIES,
             "rotation-rich (tilted and rolled views, the default), paper (translation only), random "
             "(views of the board centre, tilt 10-35 deg, any azimuth, roll +-30 deg, 0.9-1.2 x distance_m)",
+        ),
+        Parameter(
+            "error_sources",
+            str,
+            (RENDER,),
+            f"'none', 'all' or names from {', '.join(ERROR_SOURCES)} joined by '+'",
+            _valid_error_sources,
+            "the scenario's model-error sections ([errors.*]) switched on, at the scenario's "
+            "magnitudes, the others off (default: those the scenario has on)",
         ),
         Parameter(
             "mount",

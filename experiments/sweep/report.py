@@ -32,6 +32,7 @@ from estimator.io.files import write_atomic
 from estimator.io.jsonfile import read_json_object
 from estimator.solve.calibration import MethodOptions
 from experiments.plotting import png_bytes
+from experiments.sweep.budget import TEXT_FILE, budget_table_html, budget_text, has_budget, plot_budget
 from experiments.sweep.plots import plot_boxes, plot_convergence, plot_error_vs_parameter
 from experiments.sweep.rows import (
     EXAMPLE_DIR,
@@ -191,6 +192,17 @@ def _convergence_seed(sweep: dict | None) -> int:
     return seed if isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0 else 0
 
 
+def _budget_section(summaries: list[CellSummary]) -> str:
+    return (
+        "<h2>Error budget</h2><p class=note>Per error source (its cell's error_sources: that source "
+        "alone at the scenario's magnitude; none = the ideal cell; all = every source together) and "
+        "method: the median / p95 translation error (mm), the median / p95 rotation error (degrees) "
+        "and the mean NEES (6 when the reported uncertainty is honest). The largest figures say "
+        f"which source to fix first; the same table as text is in {TEXT_FILE}.</p>"
+        + budget_table_html(summaries)
+    )
+
+
 def build_report(out_dir: Path, rows: list[dict] | None = None) -> Report:
     """Rebuild DIR/report.html and DIR/plots/*.png from the rows (default: load_report_rows(out_dir))."""
     out_dir = Path(out_dir)
@@ -205,6 +217,10 @@ def build_report(out_dir: Path, rows: list[dict] | None = None) -> Report:
     fixed = fixed_parameters(rows)
 
     figures: list[tuple[str, str, object]] = []  # (file name, heading, figure)
+    budget = has_budget(summaries)
+    if budget:
+        figures.append(("error_budget.png", "Error budget per source and method", plot_budget(summaries)))
+        write_atomic(out_dir / TEXT_FILE, budget_text(summaries) + "\n")
     for p in parameters:
         figures.append((f"error_vs_{p}.png", f"Error against {p}", plot_error_vs_parameter(rows, p)))
     figures.append(("boxes.png", "Errors per method", plot_boxes(rows)))
@@ -256,6 +272,7 @@ failed trials too. CRB = RMS over the same trials of the root-sum-square Cramer-
 RMS / CRB near 1 means the method reaches the bound (highlighted above {BAD_RATIO}; trials whose mount was
 not observable have no bound and are left out of the ratio).</p>
 <h2>Sweep</h2>{_sweep_section(sweep, out_dir)}
+{_budget_section(summaries) if budget else ""}
 <h2>Summary per grid cell and method</h2>{summary_table(summaries)}
 <h2>Failures</h2>{failures_table(summaries)}
 <h2>Plots</h2>{"".join(f"<p class=note>{_e(n)}</p>" for n in notes)}

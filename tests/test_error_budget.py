@@ -1,0 +1,121 @@
+"""The error-budget sweep: error_sources switches the scenario's model-error sections, render
+trials run with them, and the report's budget table and plot come from the rows."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimator.io.models import models_dir
+from experiments.sweep import report
+from experiments.sweep.budget import TEXT_FILE, budget_text, has_budget
+from experiments.sweep.config import SweepConfigError, cell_scenario, load_config, scenario_defaults
+from experiments.sweep.parameters import ERROR_SOURCES, error_source_set, error_sources_name
+from experiments.sweep.rows import load_rows
+from experiments.sweep.runner import run_sweep
+from experiments.sweep.summary import summarise
+from sim.scenario import load_scenario
+
+REALISTIC = models_dir() / "scenarios" / "realistic.toml"
+
+
+def test_error_source_names_round_trip() -> None:
+    assert error_source_set("none") == () and error_source_set("all") == ERROR_SOURCES
+    assert error_source_set("depth+arm") == ("arm", "depth")
+    assert error_sources_name(("depth", "arm")) == "arm+depth"
+    assert error_sources_name(ERROR_SOURCES) == "all" and error_sources_name(()) == "none"
+    with pytest.raises(ValueError, match="unknown error source"):
+        error_source_set("arm+wind")
+
+
+def test_error_sources_switch_exactly_the_named_sections() -> None:
+    base = load_scenario(REALISTIC)
+    assert scenario_defaults(base)["error_sources"] == "all"
+    assert scenario_defaults(load_scenario(None))["error_sources"] == "none"
+    params = {**scenario_defaults(base), "error_sources": "lens+board"}
+    scenario = cell_scenario(base.to_dict(), str(REALISTIC.parent), params)
+    on = {name for name in ERROR_SOURCES if getattr(scenario.errors, name).enabled}
+    assert on == {"lens", "board"}
+    # The magnitudes are the realistic scenario's, not the defaults.
+    assert scenario.errors.board.bend_m == base.errors.board.bend_m
+    assert scenario.errors.lens.true_coefficients == base.errors.lens.true_coefficients
+
+
+def test_bad_error_sources_name_the_key(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text('fidelity = "render"\n[grid]\nerror_sources = ["arm", "weather"]\n')
+    with pytest.raises(SweepConfigError, match="'grid.error_sources\\[1\\]'"):
+        load_config(path)
+    path.write_text('[grid]\nerror_sources = ["arm"]\n')  # measurement fidelity has no images
+    with pytest.raises(SweepConfigError, match="error_sources"):
+        load_config(path)
+
+
+def test_budget_sweep_runs_and_reports(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    path = tmp_path / "budget.toml"
+    path.write_text(
+        'fidelity = "render"\ntrials = 1\nmethods = ["ekf", "opencv-park"]\n'
+        f"scenario = {str(REALISTIC)!r}\n"
+        '[fixed]\nwaypoints = 6\n[grid]\nerror_sources = ["none", "board"]\n'
+    )
+    out = tmp_path / "out"
+    outcome = run_sweep(load_config(path), out, workers=1, progress=False)
+    assert outcome.computed == 2 and not outcome.lost
+    rows = load_rows(out)
+    assert [r["error_sources"] for r in rows] == ["none", "none", "board", "board"]
+    ideal = {r["method"]: r for r in rows if r["error_sources"] == "none"}
+    printed = {r["method"]: r for r in rows if r["error_sources"] == "board"}
+    assert all(r["status"] == "ok" for r in rows), [r["failure"] for r in rows]
+    # The realistic board (0.3 % scale, 0.7 mm bend) costs Park accuracy; the ideal cell does not.
+    assert ideal["opencv-park"]["error_translation_mm"] < 1.0
+    assert printed["opencv-park"]["error_translation_mm"] > ideal["opencv-park"]["error_translation_mm"]
+
+    built = report.build_report(out)
+    assert (out / "plots" / "error_budget.png").is_file()
+    assert "Error budget" in built.html.read_text()
+    text = (out / TEXT_FILE).read_text().splitlines()
+    assert text[0].split()[:2] == ["source", "method"] and len(text) == 1 + 4
+
+
+def test_budget_table_gives_median_p95_and_mean_nees() -> None:
+    rng = np.random.default_rng(3)
+    rows = []
+    for c, source in enumerate(("none", "arm")):
+        for t in range(5):
+            error = float(rng.uniform(0.1, 1.0)) * (1 + 9 * c)
+            rows.append(
+                {
+                    "trial_id": f"c{c:02d}-t{t:04d}",
+                    "cell": f"c{c:02d}",
+                    "fidelity": "render",
+                    "seed": f"0/{c}/{t}",
+                    "error_sources": source,
+                    "method": "ekf",
+                    "status": "ok",
+                    "failure": "",
+                    "error_translation_mm": error,
+                    "error_rotation_deg": error / 10,
+                    "sigma_translation_mm": 0.1,
+                    "sigma_rotation_deg": 0.01,
+                    "nees": float(t),
+                    "crb_translation_mm": 0.1,
+                    "crb_rotation_deg": 0.01,
+                    "time_s": 0.01,
+                }
+            )
+    summaries = summarise(rows)
+    assert has_budget(summaries)
+    lines = budget_text(summaries).splitlines()
+    for line, source in zip(lines[1:], ("none", "arm"), strict=True):
+        errors = np.array([r["error_translation_mm"] for r in rows if r["error_sources"] == source])
+        fields = line.split()
+        assert fields[0] == source and fields[1] == "ekf"
+        assert math.isclose(float(fields[2]), np.median(errors), abs_tol=1e-3)
+        assert math.isclose(float(fields[3]), np.percentile(errors, 95), abs_tol=1e-3)
+        assert math.isclose(float(fields[6]), 2.0, abs_tol=1e-2)  # mean of 0..4
+        assert fields[7] == "5/5"
+    assert not has_budget([s for s in summaries if s.parameters["error_sources"] == "arm"])
