@@ -11,6 +11,12 @@ import numpy as np
 
 from estimator.geometry.transforms import rpy_from_transform, xyz_quat_from_transform
 
+IDEAL_CELL_NOTE = (
+    "note: the default scenario is the ideal cell (exact kinematics, camera and board); "
+    "models/scenarios/realistic.toml has a real cell's error sources and is the one to read real "
+    "expectations from (hec simulate --scenario realistic --out DIR)"
+)
+
 
 def run_simulate(args: argparse.Namespace) -> int:
     """`hec demo` (args.command == "demo") or `hec simulate`; 0 done, 2 for a bad scenario."""
@@ -32,6 +38,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     _print_simulation(result, scenario.mount.transform())
     if args.command == "demo":
         _demo_detect_and_calibrate(result.out_dir)
+        print(f"\n{IDEAL_CELL_NOTE}")
     return 0
 
 

@@ -16,6 +16,7 @@ from pydantic import Field, ValidationError, model_validator
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_rpy
+from estimator.io.models import models_dir
 from estimator.io.tomlfile import Section, read_toml, validation_problems
 from estimator.targets.board import BoardDefinition, find_board
 
@@ -300,10 +301,14 @@ class Scenario(Section):
 
 
 def load_scenario(path: str | Path | None) -> Scenario:
-    """Read and validate a scenario file; None gives the default scenario."""
+    """Read and validate a scenario file; a name of models/scenarios/ without .toml ("realistic")
+    reads that one; None gives the default scenario."""
     if path is None:
         return Scenario()
     path = Path(path)
+    named = models_dir() / "scenarios" / f"{path}.toml"
+    if not path.exists() and path.suffix == "" and named.is_file():
+        path = named
     data = read_toml(path, ScenarioError, "scenario")
     if "base_dir" in data:
         raise ScenarioError(f"{path}: key 'base_dir': unknown key")

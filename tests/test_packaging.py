@@ -152,4 +152,5 @@ def test_installed_wheel_runs_the_demo(wheel: Path, tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert f"FROM {site / 'experiments' / '__init__.py'}" in proc.stdout
     assert "ekf" in proc.stdout and "truth: translation error" in proc.stdout
+    assert "realistic.toml" in proc.stdout  # the demo says it is the ideal cell
     assert (out / "dataset.json").is_file() and (out / "detections.json").is_file()
