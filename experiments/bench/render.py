@@ -19,46 +19,39 @@ from estimator.geometry.transforms import invert
 from estimator.geometry.waypoints import WaypointRejected
 from estimator.io.models import models_dir
 from sim.cell import SimCell
-from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
+from sim.noise import apply_depth_models, apply_rgb_models
 from sim.scenario import Scenario, load_scenario
 from sim.simulate import scenario_waypoints
 
 PARTS = ("ik+checks", "render", "real camera", "noise", "total")
 
 
-def time_scenario(scenario: Scenario, rounds: int) -> dict[str, list[float]]:
-    """Milliseconds per part for every captured waypoint, the steps of SimCell.capture timed apart."""
-    rng = np.random.default_rng(0)
-    cell = SimCell(scenario, rng)
-    camera, noise = cell.camera, scenario.noise
-    waypoints = scenario_waypoints(scenario)
-    cell.render_true()  # warm-up: GL context and texture upload
-    times: dict[str, list[float]] = {name: [] for name in PARTS}
-    for _ in range(rounds):
-        for waypoint in waypoints:
-            t0 = time.perf_counter()
-            try:
-                cell.move_to(waypoint)
-            except WaypointRejected:
-                continue
-            t1 = time.perf_counter()
-            rgb, depth = cell.render_true()
-            t2 = time.perf_counter()
-            T_cam_board = invert(cell.T_base_cam()) @ cell.cell.T_base_board
-            rgb, depth = camera.view(rgb, depth, rng)
-            rgb = camera.light(rgb, T_cam_board, rng)
-            t3 = time.perf_counter()
-            apply_rgb_models(rgb, noise.rgb, rng)
-            depth = apply_depth_models(depth, camera.intrinsics, noise, rng, camera.depth_correlation_px())
-            perturb_flange_pose(cell.true_flange_pose(), noise.robot_pose, rng)
-            t4 = time.perf_counter()
-            camera.holes(depth, rng)  # a real-camera effect, applied after the noise
-            t5 = time.perf_counter()
-            parts = (t1 - t0, t2 - t1, t3 - t2 + t5 - t4, t4 - t3, t5 - t0)
-            for name, dt in zip(PARTS, parts, strict=True):
-                times[name].append(dt * 1000)
-    cell.close()
-    return times
+def time_pass(cell: SimCell, times: dict[str, list[float]]) -> None:
+    """One pass over the cell's trajectory: milliseconds per part of every captured waypoint appended to
+    times, the steps of SimCell.capture timed apart."""
+    camera, noise, rng = cell.camera, cell.scenario.noise, cell.rng
+    for waypoint in scenario_waypoints(cell.scenario):
+        t0 = time.perf_counter()
+        try:
+            cell.move_to(waypoint)
+        except WaypointRejected:
+            continue
+        t1 = time.perf_counter()
+        rgb, depth = cell.render_true()
+        t2 = time.perf_counter()
+        T_cam_board = invert(cell.T_base_cam()) @ cell.cell.T_base_board
+        rgb, depth = camera.view(rgb, depth, rng)
+        rgb = camera.light(rgb, T_cam_board, rng)
+        t3 = time.perf_counter()
+        apply_rgb_models(rgb, noise.rgb, rng)
+        depth = apply_depth_models(depth, camera.intrinsics, noise, rng, camera.depth_correlation_px())
+        cell.flange_pose()
+        t4 = time.perf_counter()
+        camera.holes(depth, rng)  # a real-camera effect, applied after the noise
+        t5 = time.perf_counter()
+        parts = (t1 - t0, t2 - t1, t3 - t2 + t5 - t4, t4 - t3, t5 - t0)
+        for name, dt in zip(PARTS, parts, strict=True):
+            times[name].append(dt * 1000)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -69,7 +62,15 @@ def main(argv: list[str] | None = None) -> None:
         "default": Scenario(),
         "realistic": load_scenario(models_dir() / "scenarios" / "realistic.toml"),
     }
-    results = {name: time_scenario(s, args.rounds) for name, s in scenarios.items()}
+    cells = {name: SimCell(s, np.random.default_rng(0)) for name, s in scenarios.items()}
+    results: dict[str, dict[str, list[float]]] = {name: {part: [] for part in PARTS} for name in cells}
+    for cell in cells.values():
+        cell.render_true()  # warm-up: GL context and texture upload
+    for _ in range(args.rounds):  # alternating, so that a change in the machine's load hits both alike
+        for name, cell in cells.items():
+            time_pass(cell, results[name])
+    for cell in cells.values():
+        cell.close()
     k = scenarios["default"].camera
     views = ", ".join(f"{name} {len(r['total'])}" for name, r in results.items())
     print(f"ms per waypoint at {k.width}x{k.height} ({views} waypoints), median (p90):")
