@@ -6,12 +6,13 @@ and depth residuals, the robot-noise prior of each delta_i, the user's prior on
 T_flange_cam if given, and the same wide prior on the state the filters start from.
 Parameters are perturbations of the starting state (estimator.geometry.lie convention), so the
 result is comparable with the filters.
-scipy.optimize.least_squares with an analytic Jacobian, assembled sparse (each
-frame's residuals depend on the state and on its own delta only) and, when robust,
-a Huber loss on the whitened residuals. The trust-region steps are solved exactly
-on the dense matrix (a few hundred columns): scipy's sparse solver (LSMR) did not
-converge in 300 evaluations on this badly scaled problem, the exact one does in ~12.
-Covariance: the state block of inv(J^T J) at the optimum.
+Gauss-Newton with step halving (iteratively reweighted for a Huber loss on the whitened
+residuals when robust) on the dense normal equations of the analytic Jacobian (each frame's
+residuals depend on the state and on its own delta only): a few hundred parameters. (scipy's
+least_squares reached the same optimum: its exact trust-region solver took ~10x longer, its
+sparse one, LSMR, did not converge in 300 evaluations.) Dense solves run on one BLAS thread:
+OpenBLAS threads made them 10x slower on a busy 2-core machine.
+Covariance: the state block of inv(J^T W J) at the optimum (W the Huber weights).
 """
 
 from __future__ import annotations
@@ -19,9 +20,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy import sparse
-from scipy.optimize import least_squares
 from scipy.stats import chi2
+from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import pose_plus_jacobian
 from estimator.solve.calibration import Calibration, MethodOptions, Prior, calibration_from_state
@@ -32,11 +32,14 @@ from estimator.solve.problem import CalibrationProblem
 
 # Whitened residuals beyond this many sigmas are down-weighted (Huber).
 HUBER_SCALE = 3.0
-TOLERANCE = 1e-12
+GN_MAX_ITERATIONS = 50
+GN_STEP_TOLERANCE = 1e-12
+GN_COST_TOLERANCE = 1e-10
+LINE_SEARCH_HALVINGS = 10
 
 
-class _Objective:
-    """Residuals and sparse Jacobian over params = [state perturbation (n), delta_1 .. delta_N (6 each)]."""
+class BatchObjective:
+    """Residuals and Jacobian over params = [state perturbation (n), delta_1 .. delta_N (6 each)]."""
 
     def __init__(
         self, problem: CalibrationProblem, start: HandEyeState, P0: np.ndarray, prior: Prior | None
@@ -68,29 +71,30 @@ class _Objective:
                 parts.append(self.robot_sqrt_info @ delta)
         return np.concatenate(parts)
 
-    def jacobian(self, params: np.ndarray) -> sparse.csr_matrix:
+    def jacobian(self, params: np.ndarray) -> np.ndarray:
+        """(rows, size) dense Jacobian of residuals(params); each frame's rows depend on the state
+        and on that frame's delta only (the rest of the row is zero)."""
         state = self.start.plus(params[: self.n])
         to_params = state.plus_jacobian(params[: self.n])
-        n_frames = len(self.problem.frames)
-        blocks = [[self.prior_sqrt_info] + [None] * n_frames]
+        preds = [
+            predict_frame(self.problem, state, frame, self._delta(params, i))
+            for i, frame in enumerate(self.problem.frames)
+        ]
+        robot_rows = 6 if self.with_robot else 0
+        rows = self.n + (6 if self.prior is not None else 0)
+        J = np.zeros((rows + sum(len(p.residual) + robot_rows for p in preds), self.size))
+        J[: self.n, : self.n] = self.prior_sqrt_info
         if self.prior is not None:
-            J_prior = np.zeros((6, self.n))
-            J_prior[:, :6] = self.prior.whitened_error(state.T_flange_cam)[1]
-            blocks.append([J_prior @ to_params] + [None] * n_frames)
-        for i, frame in enumerate(self.problem.frames):
-            delta = self._delta(params, i)
-            pred = predict_frame(self.problem, state, frame, delta)
-            row = [pred.J_state @ to_params] + [None] * n_frames
+            J[self.n : rows, :6] = self.prior.whitened_error(state.T_flange_cam)[1] @ to_params[:6, :6]
+        for i, pred in enumerate(preds):
+            m = len(pred.residual)
+            J[rows : rows + m, : self.n] = pred.J_state @ to_params
             if self.with_robot:
-                row[1 + i] = pred.J_flange @ pose_plus_jacobian(delta)
-                prior_row = [sparse.csr_matrix((6, self.n))] + [None] * n_frames
-                prior_row[1 + i] = self.robot_sqrt_info
-                blocks += [row, prior_row]
-            else:
-                blocks.append(row[:1])
-        if not self.with_robot:
-            blocks = [row[:1] for row in blocks]
-        return sparse.bmat(blocks, format="csr")
+                cols = slice(self.n + 6 * i, self.n + 6 * i + 6)
+                J[rows : rows + m, cols] = pred.J_flange @ pose_plus_jacobian(self._delta(params, i))
+                J[rows + m : rows + m + 6, cols] = self.robot_sqrt_info
+            rows += m + robot_rows
+        return J
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
         """Whitened measurement residual of each frame at params."""
@@ -101,31 +105,65 @@ class _Objective:
         ]
 
 
+def huber_weights(r: np.ndarray) -> np.ndarray:
+    """Per-residual IRLS weights of the Huber loss at HUBER_SCALE (whitened units)."""
+    a = np.abs(r)
+    return np.where(a <= HUBER_SCALE, 1.0, HUBER_SCALE / np.maximum(a, 1e-300))
+
+
+def gauss_newton(
+    objective: BatchObjective, x0: np.ndarray, robust: bool, cost_tolerance: float = GN_COST_TOLERANCE
+) -> tuple[np.ndarray, int]:
+    """The (Huber-weighted, with robust) least-squares optimum of the batch objective from x0:
+    Gauss-Newton with step halving on the dense normal equations (a few hundred parameters).
+    Stops when a step lowers the cost by less than cost_tolerance of it (or cannot lower it).
+    Returns the parameters and the iterations run."""
+
+    def cost(x: np.ndarray) -> float:
+        r = objective.residuals(x)
+        if not robust:
+            return float(r @ r)
+        a = np.abs(r)
+        return float(np.sum(np.where(a <= HUBER_SCALE, a * a, 2 * HUBER_SCALE * a - HUBER_SCALE**2)))
+
+    x, current = x0, cost(x0)
+    iterations = 0
+    while iterations < GN_MAX_ITERATIONS:
+        iterations += 1
+        r = objective.residuals(x)
+        J = objective.jacobian(x)
+        w = huber_weights(r) if robust else np.ones_like(r)
+        Jw = J * w[:, None]
+        step = -np.linalg.solve(J.T @ Jw, Jw.T @ r)
+        for _ in range(LINE_SEARCH_HALVINGS):
+            trial = cost(x + step)
+            if trial <= current:
+                break
+            step = 0.5 * step
+        else:
+            break
+        x, previous, current = x + step, current, trial
+        if np.max(np.abs(step)) < GN_STEP_TOLERANCE or previous - current < cost_tolerance * previous:
+            break
+    return x, iterations
+
+
 def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     """The batch optimum over all frames (see the module doc)."""
     start_time = time.perf_counter()
     start_point = initial_state(problem, options)
     start, source = start_point.state, start_point.source
-    objective = _Objective(problem, start, initial_covariance(start, options), options.prior)
-    solution = least_squares(
-        objective.residuals,
-        np.zeros(objective.size),
-        jac=lambda params: objective.jacobian(params).toarray(),
-        loss="huber" if options.robust else "linear",
-        f_scale=HUBER_SCALE,
-        x_scale=1.0,
-        ftol=TOLERANCE,
-        xtol=TOLERANCE,
-        gtol=TOLERANCE,
-        method="trf",
-        tr_solver="exact",
-    )
-    state = start.plus(solution.x[: objective.n])
-    J = objective.jacobian(solution.x).toarray()
-    # Covariance of the parameters, then of the local perturbation at the estimate.
-    to_local = start.plus_jacobian(solution.x[: objective.n])
-    cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
-    rejected = _outliers(problem, objective.frame_residuals(solution.x)) if options.robust else set()
+    objective = BatchObjective(problem, start, initial_covariance(start, options), options.prior)
+    with threadpool_limits(limits=1, user_api="blas"):
+        params, iterations = gauss_newton(objective, np.zeros(objective.size), options.robust)
+        state = start.plus(params[: objective.n])
+        J = objective.jacobian(params)
+        if options.robust:
+            J = J * np.sqrt(huber_weights(objective.residuals(params)))[:, None]
+        # Covariance of the parameters, then of the local perturbation at the estimate.
+        to_local = start.plus_jacobian(params[: objective.n])
+        cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
+    rejected = outliers(problem, objective.frame_residuals(params)) if options.robust else set()
     return calibration_from_state(
         "batch",
         problem,
@@ -133,15 +171,14 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
         0.5 * (cov + cov.T),
         rejected,
         {
-            "iterations": int(solution.nfev),
+            "iterations": iterations,
             "time_s": time.perf_counter() - start_time,
             "initialisation": source,
-            "optimizer": solution.message,
         },
     )
 
 
-def _outliers(problem: CalibrationProblem, residuals: list[np.ndarray]) -> set[tuple[int, int]]:
+def outliers(problem: CalibrationProblem, residuals: list[np.ndarray]) -> set[tuple[int, int]]:
     """(frame, marker_id) whose whitened residual fails the filters' chi-square gate at the optimum:
     the Huber loss down-weighted them."""
     out = set()

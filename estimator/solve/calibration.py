@@ -50,12 +50,15 @@ class MethodOptions:
     """prior: None = no prior, initialise in closed form. map_model: 'board' (the board pose,
     geometry known) or 'landmarks' (every corner a free point). estimate_depth_scale: add
     a depth scale factor to the state. robust: down-weight outliers (batch: Huber loss,
-    filters: gate markers whose innovation fails a chi-square test)."""
+    filters: gate markers whose innovation fails a chi-square test). learn_noise: hec's methods
+    first learn the noise levels from all frames (estimator.solve.noise_learning) and run with
+    them, the outliers of that pass left out instead of gated; False: the declared levels."""
 
     prior: Prior | None = None
     map_model: str = "board"
     estimate_depth_scale: bool = False
     robust: bool = True
+    learn_noise: bool = True
 
     def __post_init__(self) -> None:
         if self.map_model not in ("board", "landmarks"):

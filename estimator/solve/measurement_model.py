@@ -80,7 +80,9 @@ class FramePrediction:
     """Whitened residual W (measured - predicted), (m,), and the Jacobians of the whitened
     prediction W h with respect to the state perturbation (m, dim) and the flange pose
     perturbation delta (m, 6). pixels: (P, 2) predicted corners; depth_m: (P,) predicted
-    depth; points_cam: (P, 3), all in marker order."""
+    depth; points_cam: (P, 3), all in marker order. J_camera (m, 8), with camera_jacobian: with
+    respect to fx, fy, cx, cy, k1, k2 (added to the distortion) and the board's scale along its x
+    and y (estimator.solve.self_calibration.NUISANCE)."""
 
     residual: np.ndarray
     J_state: np.ndarray
@@ -88,21 +90,26 @@ class FramePrediction:
     pixels: np.ndarray
     depth_m: np.ndarray
     points_cam: np.ndarray
+    J_camera: np.ndarray | None = None
 
 
-def _projection(p_cam: np.ndarray, problem: CalibrationProblem) -> tuple[np.ndarray, np.ndarray]:
-    """(P, 3) camera points -> (P, 2) pixels and (P, 2, 3) d(pixel)/d(p_cam)."""
+def _projection(
+    p_cam: np.ndarray, problem: CalibrationProblem
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(P, 3) camera points -> (P, 2) pixels, (P, 2, 3) d(pixel)/d(p_cam), and the undistorted and
+    distorted normalised coordinates (P, 2) each."""
     k = problem.intrinsics
     z = p_cam[:, 2]
     xy = p_cam[:, :2] / z[:, None]
     d_xy = np.zeros((len(z), 2, 3))
     d_xy[:, 0, 0] = d_xy[:, 1, 1] = 1.0 / z
     d_xy[:, :, 2] = -xy / z[:, None]
+    xy_d = xy
     if any(k.dist):
-        xy, d_dist = distort_normalized(xy, k.dist)
+        xy_d, d_dist = distort_normalized(xy, k.dist)
         d_xy = d_dist @ d_xy
     f = np.array([k.fx, k.fy])
-    return xy * f + np.array([k.cx, k.cy]), d_xy * f[None, :, None]
+    return xy_d * f + np.array([k.cx, k.cy]), d_xy * f[None, :, None], xy, xy_d
 
 
 def predict_frame(
@@ -111,6 +118,7 @@ def predict_frame(
     frame: FrameMeasurements,
     delta_flange: np.ndarray | None = None,
     jacobians: bool = True,
+    camera_jacobian: bool = False,
 ) -> FramePrediction:
     """Predict one frame's markers and compare with the measurements (see the module doc)."""
     T_base_flange = (
@@ -128,7 +136,7 @@ def predict_frame(
         p_base = state.landmarks_base[rows]
     p_flange = (p_base - t_F) @ R_F
     p_cam = (p_flange - t_X) @ R_X
-    pixels, d_pix = _projection(p_cam, problem)
+    pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
     scale = 1.0 if state.depth_scale is None else state.depth_scale
     depth = scale * p_cam[:, 2]
 
@@ -177,6 +185,41 @@ def predict_frame(
             rows_flange.append(J_flange_points[sl, 2])
         J_state_rows.append(m.whitening @ np.concatenate(rows_state))
         J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
+    J_camera = None
+    if camera_jacobian:
+        J_camera = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base)
     return FramePrediction(
-        residual, np.concatenate(J_state_rows), np.concatenate(J_flange_rows), pixels, depth, p_cam
+        residual, np.concatenate(J_state_rows), np.concatenate(J_flange_rows), pixels, depth, p_cam, J_camera
     )
+
+
+def _camera_jacobian(
+    problem: CalibrationProblem,
+    state: HandEyeState,
+    markers: list,
+    xy: np.ndarray,
+    xy_d: np.ndarray,
+    d_meas_d_base: np.ndarray,
+) -> np.ndarray:
+    """(m, 8) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y)."""
+    k = problem.intrinsics
+    P = len(xy)
+    J = np.zeros((P, 3, 8))  # per point: (u, v, depth) rows
+    J[:, 0, 0], J[:, 1, 1] = xy_d[:, 0], xy_d[:, 1]
+    J[:, 0, 2] = J[:, 1, 3] = 1.0
+    r2 = np.sum(xy * xy, axis=1)
+    f = np.array([k.fx, k.fy])
+    J[:, :2, 4] = xy * r2[:, None] * f
+    J[:, :2, 5] = xy * (r2 * r2)[:, None] * f
+    if state.T_base_board is not None:  # landmarks have no board to scale
+        corners_board = np.concatenate([m.corners_board for m in markers])
+        R_B = state.T_base_board[:3, :3]
+        for axis in (0, 1):
+            d_base = R_B[:, axis][None, :] * corners_board[:, axis : axis + 1]  # (P, 3)
+            J[:, :, 6 + axis] = np.einsum("pij,pj->pi", d_meas_d_base, d_base)
+    rows = []
+    for i, m in enumerate(markers):
+        sl = slice(4 * i, 4 * i + 4)
+        block = [J[sl, :2].reshape(8, 8)] + ([J[sl, 2]] if m.depth_m is not None else [])
+        rows.append(m.whitening @ np.concatenate(block))
+    return np.concatenate(rows)

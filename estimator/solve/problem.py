@@ -77,13 +77,15 @@ def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
 @dataclass
 class MarkerMeasurement:
     """One marker in one frame. corners_board: (4, 3) metres in the board frame.
-    corners_px: (4, 2). depth_m: (4,) at the corners, or None. whitening: (m, 8) or (m, 12)."""
+    corners_px: (4, 2). depth_m: (4,) at the corners, or None. whitening: (m, 8) or (m, 12),
+    block-diagonal: its first pixel_rows rows whiten the pixels, the others the depths."""
 
     marker_id: int
     corners_board: np.ndarray
     corners_px: np.ndarray
     depth_m: np.ndarray | None
     whitening: np.ndarray
+    pixel_rows: int
 
     @property
     def measured(self) -> np.ndarray:
@@ -191,16 +193,13 @@ def _marker(frame: int, m, board: BoardDefinition, use_depth: bool) -> MarkerMea
     corners = np.asarray(m.corners_px, dtype=np.float64)
     if corners.shape != (4, 2) or not np.all(np.isfinite(corners)):
         raise CalibrationInputError(f"{what}: corners_px must be (4, 2) finite pixels")
-    cov = np.asarray(m.corners_cov, dtype=np.float64)
+    W = whitening_matrix(np.asarray(m.corners_cov, dtype=np.float64), what)
+    pixel_rows = len(W)
     depth = None
     if use_depth and m.depth_m is not None:
         depth = np.asarray(m.depth_m, dtype=np.float64)[1:5]
         if not np.all(np.isfinite(depth)) or np.any(depth <= 0):
             raise CalibrationInputError(f"{what}: depth_m must be finite and positive")
-        full = np.zeros((12, 12))
-        full[:8, :8] = cov
-        full[8:, 8:] = np.asarray(m.depth_cov, dtype=np.float64)[1:5, 1:5]
-        cov = full
-    return MarkerMeasurement(
-        m.marker_id, board.marker_corners(m.marker_id), corners, depth, whitening_matrix(cov, what)
-    )
+        W_depth = whitening_matrix(np.asarray(m.depth_cov, dtype=np.float64)[1:5, 1:5], f"{what} depth")
+        W = np.block([[W, np.zeros((pixel_rows, 4))], [np.zeros((len(W_depth), 8)), W_depth]])
+    return MarkerMeasurement(m.marker_id, board.marker_corners(m.marker_id), corners, depth, W, pixel_rows)

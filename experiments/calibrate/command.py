@@ -15,7 +15,8 @@ from estimator.io.dataset import Dataset, load_dataset
 from estimator.io.jsonfile import read_json_object
 from estimator.observe.observations import FrameObservations
 from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.methods import DEFAULT_METHOD, METHODS, run_method
+from estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method
+from estimator.solve.noise_learning import learn_noise
 from estimator.solve.problem import (
     CalibrationInputError,
     CalibrationProblem,
@@ -151,11 +152,14 @@ def run_methods(
     """Each method on the same problem. With several, a CalibrationInputError becomes a MethodFailure;
     with one, it is raised."""
     results: list[Result] = []
+    learned = None  # learned once, shared by the methods that model the noise
     bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
     for name in bar:
         bar.set_postfix_str(name)
         try:
-            results.append(run_method(name, problem, options, observations))
+            if learned is None and needs_learned_noise(name, options):
+                learned = learn_noise(problem, options)
+            results.append(run_method(name, problem, options, observations, learned))
         except CalibrationInputError as exc:
             if len(names) == 1:
                 raise

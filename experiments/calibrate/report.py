@@ -15,6 +15,7 @@ from estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_qu
 from estimator.io.files import write_atomic
 from estimator.solve.calibration import Calibration
 from estimator.solve.methods import DEFAULT_METHOD
+from estimator.solve.problem import RobotPoseNoise
 
 TRANSFORM_MEANING = (
     "T_flange_cam: the camera optical frame (x right, y down, z forward) in the flange (tool0) frame; "
@@ -136,6 +137,34 @@ def _format_residuals(cal: Calibration) -> list[str]:
     return lines
 
 
+def _chi2_dof(cal: Calibration) -> float | None:
+    """The measurements' chi-square per degree of freedom at the declared noise, if known."""
+    noise = cal.diagnostics.get("noise")
+    return None if noise is None else noise.chi2_dof
+
+
+def _format_noise(cal: Calibration) -> list[str]:
+    """The noise levels learned from the data beside the declared ones, and the goodness of fit."""
+    noise = cal.diagnostics.get("noise")
+    if noise is None:
+        return ["noise: as declared (not learned from the data)"]
+    learnt, declared = noise.learned, noise.declared
+    ratios = noise.ratios
+    fit = ", ".join(f"{name.replace('_', ' ')} {ratios[name]:.2f}" for name in ratios)
+
+    def arm(robot: RobotPoseNoise) -> str:
+        return f"{1e3 * robot.translation_sigma_m:.3f} mm / {np.degrees(robot.rotation_sigma_rad):.4f} deg"
+
+    return [
+        f"noise learned from the data: corners {learnt.pixel_scale:.2f}x the detector's sigma, depth "
+        f"{learnt.depth_scale:.2f}x the depth model's, arm pose {arm(learnt.robot)} (declared "
+        f"{arm(declared.robot)}); the estimate and its uncertainty use the learned levels "
+        f"({1e3 * noise.time_s:.0f} ms)",
+        f"goodness of fit: chi-square per degree of freedom at the declared noise {noise.chi2_dof:.2f} "
+        f"(1 = the model fits; {fit})",
+    ]
+
+
 def _format_run(cal: Calibration) -> list[str]:
     d = cal.diagnostics
     start = f"; start: {d['initialisation']}" if d.get("initialisation") else ""
@@ -148,7 +177,7 @@ def _format_run(cal: Calibration) -> list[str]:
 def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> str:
     """The full text report of one Calibration; with T_true (4, 4) its errors against it."""
     lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam), *_format_uncertainty(cal)]
-    lines += [*_format_residuals(cal), *_format_run(cal)]
+    lines += [*_format_residuals(cal), *_format_noise(cal), *_format_run(cal)]
     lines += [f"warning: {w}" for w in cal.warnings] or ["warnings: none"]
     if T_true is not None:
         e = ground_truth_errors(cal, T_true)
@@ -177,7 +206,9 @@ def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str
     x, y, z = 1e3 * r.T_flange_cam[:3, 3]
     row = f"{r.method:<18} {x:>+9.3f} {y:>+9.3f} {z:>+9.3f}"
     row += f" {_cell(_rss(r.sigma_translation_mm), '.4f', 10)} {_cell(_rss(r.sigma_rotation_deg), '.5f', 11)}"
-    row += f" {r.residual_rms_px:>9.3f} {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
+    row += f" {r.residual_rms_px:>9.3f} {_cell(_chi2_dof(r), '.2f', 8)}"
+    row += f" {r.observations_used:>4}/{r.observations_rejected:<4}"
+    row += f" {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
     if T_true is not None:
         e = ground_truth_errors(r, T_true)
         row += f" {e['error_translation_mm']:>9.3f} {e['error_rotation_deg']:>9.4f}"
@@ -189,7 +220,7 @@ def format_comparison(results: list[Result], T_true: np.ndarray | None = None) -
     header = (
         f"{'method':<18} {'x [mm]':>9} {'y [mm]':>9} {'z [mm]':>9} {'sigma_t mm':>10} {'sigma_r deg':>11}"
     )
-    header += f" {'resid px':>9} {'time ms':>9}" + (
+    header += f" {'resid px':>9} {'chi2/dof':>8} {'used/rej':>9} {'time ms':>9}" + (
         f" {'err mm':>9} {'err deg':>9}" if T_true is not None else ""
     )
     lines = [header]
@@ -197,7 +228,10 @@ def format_comparison(results: list[Result], T_true: np.ndarray | None = None) -
     lines += [_comparison_row(r, T_true, failures) for r in results]
     lines.append(
         "sigma_t, sigma_r: root-sum-square of the 1-sigma values (translation along the flange axes, "
-        "rotation about the camera axes), '-' = no uncertainty; resid: pixel RMS at the reported flange poses"
+        "rotation about the camera axes), '-' = no uncertainty; resid: pixel RMS at the reported flange "
+        "poses; chi2/dof: the measurements' chi-square per degree of freedom at the declared noise (1 = the "
+        "model fits, '-' = not computed); used/rej: observations used and left out; time: the method's own "
+        "(the noise learning the model-based methods share is not in it)"
     )
     return "\n".join(lines + _comparison_notes(results))
 
@@ -258,6 +292,8 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
         "time_s": d.get("time_s"),
         "initialisation": d.get("initialisation"),
         "observability": None if report is None else report.to_dict(),
+        "noise": None if d.get("noise") is None else d["noise"].to_dict(),
+        "fit": None if d.get("fit") is None else d["fit"].to_dict(),
         "warnings": list(cal.warnings),
     }
     if T_true is not None:

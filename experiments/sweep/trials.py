@@ -251,7 +251,8 @@ def run_trial(task: TrialTask) -> list[dict]:
     """One trial: its rows, one per method in task.methods (a failure is a row, not an exception)."""
     from estimator.solve.calibration import MethodOptions
     from estimator.solve.measurement_model import HandEyeState
-    from estimator.solve.methods import METHODS
+    from estimator.solve.methods import needs_learned_noise, solve
+    from estimator.solve.noise_learning import learn_noise
     from estimator.solve.observability import observability
 
     base = {
@@ -279,10 +280,13 @@ def run_trial(task: TrialTask) -> list[dict]:
         else no_crb
     )
     rows = []
+    options, learned = MethodOptions(), None
     for method in task.methods:
         start = time.perf_counter()
-        try:  # METHODS directly: run_method's observability at the estimate is not needed here
-            result = METHODS[method](problem, MethodOptions(), observations)
+        try:  # solve, not run_method: the observability at the estimate is not needed here
+            if learned is None and needs_learned_noise(method, options):
+                learned = learn_noise(problem, options)  # once, shared by the noise-modelling methods
+            result = solve(method, problem, options, observations, learned)
         except Exception as exc:  # noqa: BLE001  (any failure of one method is that method's row)
             message = str(exc) if isinstance(exc, CalibrationInputError) else f"{type(exc).__name__}: {exc}"
             rows.append(_failed(base, method, message, crb, time.perf_counter() - start))

@@ -1,0 +1,184 @@
+"""Does the model fit the data? The chi-square per degree of freedom of each measurement group at
+the declared noise, and, where a group fits worse than its noise, the likely cause read from the
+pattern of its residuals, in plain words.
+
+Patterns looked for (each a warning with the figures that support it):
+- the arm: the flange poses disagree with each other more than the declared robot noise;
+- the image model: pixel residuals growing toward the image border (intrinsics or distortion);
+- the board: the board looking larger or smaller than its definition in every view (print scale
+  or board file);
+- depth: depth residuals that grow with distance or are offset (a depth scale or offset bias),
+  or that are simply larger than the depth noise model;
+- the prior: the user's prior and the data disagree (Mahalanobis distance);
+- rejections: more than MAX_REJECTED_FRACTION of the observations left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from estimator.solve.measurement_model import predict_frame
+from estimator.solve.noise_learning import LearnedNoise
+from estimator.solve.problem import CalibrationProblem
+from estimator.solve.self_calibration import NUISANCE
+
+# A group fits badly when its chi-square per degree of freedom at the declared noise exceeds this
+# (its learned sigma is then more than 1.5x the declared one).
+BAD_FIT = 2.25
+MAX_REJECTED_FRACTION = 0.10
+PRIOR_CONFLICT_PROBABILITY = 1e-3
+# A residual pattern is reported when it explains at least this share of the residual's variance.
+PATTERN_SHARE = 0.3
+
+
+@dataclass
+class FitCheck:
+    """chi2_dof: per group at the declared noise (1 when the model fits), 'all measurements' for
+    pixels and depth together. patterns: named figures (radial growth, board scale, depth trend).
+    warnings: plain words, the likely cause first."""
+
+    chi2_dof: dict[str, float]
+    patterns: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"chi2_per_dof_declared": self.chi2_dof, "patterns": self.patterns, "warnings": self.warnings}
+
+
+def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int) -> FitCheck:
+    """The fit of the learning pass's optimum (learned.state) to the problem. rejected: observations
+    the method left out."""
+    prior_distance = learned.prior_distance
+    check = FitCheck(dict(learned.ratios, **{"all measurements": learned.chi2_dof}))
+    declared, learnt = learned.declared.robot, learned.learned.robot
+    ratio = check.chi2_dof
+    if max(ratio.get("robot_translation", 0), ratio.get("robot_rotation", 0)) > BAD_FIT:
+        check.warnings.append(
+            f"the arm is less exact than declared: its pose noise, learned from the data, is "
+            f"{1e3 * learnt.translation_sigma_m:.2f} mm / {np.degrees(learnt.rotation_sigma_rad):.3f} deg, "
+            f"the dataset declares {1e3 * declared.translation_sigma_m:.2f} mm / "
+            f"{np.degrees(declared.rotation_sigma_rad):.3f} deg (a UR's absolute accuracy with nominal "
+            "kinematics is millimetres, its repeatability 0.1 mm): the learned level is used"
+        )
+    if ratio.get("pixels", 0) > BAD_FIT:
+        check.warnings += _pixel_patterns(problem, learned, check.patterns)
+    if ratio.get("depth", 0) > BAD_FIT:
+        check.warnings += _depth_pattern(problem, learned, check.patterns)
+    if prior_distance is not None:
+        check.patterns["prior_mahalanobis"] = float(np.sqrt(prior_distance))
+        if chi2.sf(prior_distance, 6) < PRIOR_CONFLICT_PROBABILITY:
+            check.warnings.append(
+                f"the prior disagrees with the data: {np.sqrt(prior_distance):.1f} sigma apart "
+                "(Mahalanobis, prior and data covariances together); check the prior file (a wrong "
+                "axis or a 90-degree turn?) or widen its covariance"
+            )
+    total = problem.observation_count
+    if total and rejected > MAX_REJECTED_FRACTION * total:
+        cause = check.warnings[0] if check.warnings else "the model does not fit these observations"
+        check.warnings.insert(
+            0,
+            f"{rejected} of {total} observations ({rejected / total:.0%}) were left out as outliers; "
+            f"likely cause: {cause}",
+        )
+    return check
+
+
+def _pixel_residuals(problem: CalibrationProblem, learned: LearnedNoise) -> tuple[np.ndarray, ...]:
+    """Per used corner: measured minus predicted pixel (N, 2), the prediction (N, 2) and the
+    predicted board centre in that frame (N, 2), at the learning pass's optimum."""
+    residual, predicted, centre = [], [], []
+    state = learned.first_state or learned.state  # the optimum under the declared camera and board
+    for frame in problem.frames:
+        keep = [(frame.frame, m.marker_id) not in learned.outliers for m in frame.markers]
+        pred = predict_frame(problem, state, frame, jacobians=False)
+        measured = np.concatenate([m.corners_px for m in frame.markers])
+        mask = np.repeat(keep, 4)
+        residual.append((measured - pred.pixels)[mask])
+        predicted.append(pred.pixels[mask])
+        centre.append(np.broadcast_to(pred.pixels.mean(axis=0), (int(mask.sum()), 2)))
+    return np.concatenate(residual), np.concatenate(predicted), np.concatenate(centre)
+
+
+def _share(residual: np.ndarray, fitted: np.ndarray) -> float:
+    """The share of the residual's sum of squares a fitted pattern explains."""
+    total = float(np.sum(residual**2))
+    return 0.0 if total == 0 else 1.0 - float(np.sum((residual - fitted) ** 2)) / total
+
+
+def _pixel_patterns(problem: CalibrationProblem, learned: LearnedNoise, patterns: dict) -> list[str]:
+    r, uv, centre = _pixel_residuals(problem, learned)
+    k = problem.intrinsics
+    words = [
+        f"the corners fit {np.sqrt(learned.ratios['pixels']):.1f}x worse than their noise "
+        f"(RMS residual {np.sqrt(np.mean(np.sum(r**2, axis=1))):.2f} px)"
+    ]
+    # Radial: the residual along the radius from the principal point, growing as r^3 (k1-like).
+    xy = (uv - [k.cx, k.cy]) / [k.fx, k.fy]
+    radius2 = np.sum(xy**2, axis=1, keepdims=True)
+    basis = xy * radius2 * [k.fx, k.fy]
+    coef = float(np.sum(basis * r) / max(np.sum(basis * basis), 1e-300))
+    radial_share = _share(r, coef * basis)
+    patterns["radial_share"] = radial_share
+    # Board scale: the residual along the vector from the board's centre in the image.
+    spread = uv - centre
+    scale = float(np.sum(spread * r) / max(np.sum(spread * spread), 1e-300))
+    scale_share = _share(r, scale * spread)
+    patterns["board_scale_fraction"] = scale
+    patterns["board_scale_share"] = scale_share
+    causes = []
+    if radial_share >= PATTERN_SHARE:
+        causes.append(
+            f"they grow toward the image border ({radial_share:.0%} of the residual is radial): the "
+            f"intrinsics or the lens distortion are off (the dataset's distortion is {list(k.dist)}): "
+            "calibrate the camera's intrinsics"
+        )
+    if scale_share >= PATTERN_SHARE:
+        causes.append(
+            f"the board looks {100 * scale:+.2f} % larger than its definition in every view "
+            f"({scale_share:.0%} of the residual): check the print scale (the 100 mm bar) or the board file"
+        )
+    if not causes:
+        causes.append("no pattern stands out: detection noise above the detector's estimate, or blur")
+    if learned.theta is not None:
+        t = dict(zip(NUISANCE, learned.theta, strict=True))
+        after = np.sqrt(learned.fit_after["pixels"]) * learned.learned.pixel_scale
+        causes.append(
+            "so the camera and the board were calibrated with the mount (fx "
+            f"{t['fx_px']:+.2f} px, fy {t['fy_px']:+.2f} px, cx {t['cx_px']:+.2f} px, "
+            f"cy {t['cy_px']:+.2f} px, "
+            f"k1 {t['k1']:+.4f}, k2 {t['k2']:+.4f}, board x {100 * t['board_scale_x']:+.2f} %, y "
+            f"{100 * t['board_scale_y']:+.2f} %): the corners now fit {after:.1f}x their noise"
+        )
+    return [words[0] + "; " + "; ".join(causes) + "; the learned pixel noise is used"]
+
+
+def _depth_pattern(problem: CalibrationProblem, learned: LearnedNoise, patterns: dict) -> list[str]:
+    measured, predicted = [], []
+    for frame in problem.frames:
+        pred = predict_frame(problem, learned.state, frame, jacobians=False)
+        for k, m in enumerate(frame.markers):
+            if m.depth_m is not None and (frame.frame, m.marker_id) not in learned.outliers:
+                measured.append(m.depth_m)
+                predicted.append(pred.depth_m[4 * k : 4 * k + 4] / (learned.state.depth_scale or 1.0))
+    z, z_pred = np.concatenate(measured), np.concatenate(predicted)
+    A = np.column_stack([z_pred, np.ones_like(z_pred)])
+    (slope, offset), *_ = np.linalg.lstsq(A, z - z_pred, rcond=None)
+    trend_share = _share(z - z_pred, A @ [slope, offset])
+    patterns.update(
+        {"depth_scale_error": float(slope), "depth_offset_m": float(offset), "depth_trend_share": trend_share}
+    )
+    level = np.sqrt(learned.ratios["depth"])
+    if trend_share >= PATTERN_SHARE:
+        cause = (
+            f"the depth is biased: measured = true x {1 + slope:.4f} {1e3 * offset:+.2f} mm explains "
+            f"{trend_share:.0%} of its residual (run the camera's on-chip calibration or Tare)"
+        )
+    else:
+        cause = "no trend with distance: depth noisier than its model (spatially correlated, flying pixels?)"
+    return [
+        f"depth and pixels disagree: the depth fits {level:.1f}x worse than its noise; {cause}; the "
+        "depth is kept with its learned (larger) noise, so pixels dominate"
+    ]

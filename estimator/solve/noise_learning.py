@@ -1,0 +1,369 @@
+"""Noise levels learned from the data: iterated variance-component estimation on the batch problem.
+
+The measurements fall into four groups, each with a noise level the dataset declares: the corner
+pixels (their covariance from the detector), the corner depths (the depth noise model), and the
+reported flange pose's translation and rotation (RobotPoseNoise). At the batch optimum, a group g
+with whitened residuals r_g has expected sum of squares equal to its redundancy
+rho_g = n_g - trace(H_gg) (H the hat matrix of the whitened, linearised problem) when its level is
+right. Each iteration rescales every group by its ratio ||r_g||^2 / rho_g and solves again
+(Helmert / Foerstner variance-component estimation), until the ratios are 1.
+
+The declared level of each group is a prior worth PRIOR_DOF degrees of freedom (an inverse-gamma
+prior: sigma^2 = (ratio * rho_g * sigma^2 + PRIOR_DOF * declared^2) / (rho_g + PRIOR_DOF)), so a
+group with few residuals (the flange poses of a handful of frames) stays near what the cell file
+says, and one with thousands (the pixels) follows the data. With the robust option, whitened
+residuals beyond the batch's Huber scale count at that scale (corrected for what clipping removes
+from a Gaussian), so a few outliers do not inflate a level, and the markers the robust optimum
+down-weights are returned as outliers for the filters to leave out (gate after a first pass over
+all frames, never against a start that saw a few).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.stats import norm
+from threadpoolctl import threadpool_limits
+
+from estimator.geometry.lie import pose_minus
+from estimator.solve.batch import HUBER_SCALE, BatchObjective, gauss_newton, huber_weights, outliers
+from estimator.solve.calibration import MethodOptions, Prior
+from estimator.solve.filters import initial_covariance
+from estimator.solve.initialise import initial_state
+from estimator.solve.measurement_model import HandEyeState
+from estimator.solve.problem import CalibrationProblem, MarkerMeasurement, RobotPoseNoise
+from estimator.solve.self_calibration import NUISANCE, SelfCalibrationObjective, adjusted_problem
+
+GROUPS = ("pixels", "depth", "robot_translation", "robot_rotation")
+PRIOR_DOF = 3.0
+MAX_ITERATIONS = 30
+# Each pass's optimum to this relative cost change (the levels move by far more between passes).
+VCE_COST_TOLERANCE = 1e-7
+# The declared image model is replaced by self-calibration when the corners fit worse than this
+# many times their noise (chi-square per degree of freedom above its square).
+PIXEL_MISFIT_SCALE = 3.0
+# Learning stops when no level changes by more than this fraction in an iteration.
+LEVEL_TOLERANCE = 0.003
+# Where the declared robot pose noise is zero (exact poses), learning starts from this floor.
+ROBOT_FLOOR = RobotPoseNoise(1e-5, float(np.radians(1e-3)))
+# E[min(x^2, c^2)] for x ~ N(0, 1), c the Huber scale: a clipped residual's expected square.
+_TAIL = 2 * norm.sf(HUBER_SCALE)
+_CLIPPED_SQUARE = float(1 - _TAIL - 2 * HUBER_SCALE * norm.pdf(HUBER_SCALE) + HUBER_SCALE**2 * _TAIL)
+
+
+@dataclass(frozen=True)
+class NoiseLevels:
+    """Noise levels of a problem: pixel_scale and depth_scale multiply the declared corner and
+    depth sigmas; robot is the flange pose noise itself."""
+
+    pixel_scale: float
+    depth_scale: float
+    robot: RobotPoseNoise
+
+    def to_dict(self) -> dict:
+        return {
+            "pixel_scale": self.pixel_scale,
+            "depth_scale": self.depth_scale,
+            "robot_translation_sigma_m": self.robot.translation_sigma_m,
+            "robot_rotation_sigma_rad": self.robot.rotation_sigma_rad,
+        }
+
+
+@dataclass
+class LearnedNoise:
+    """What the data say about the noise. declared: the problem's levels; learned: the converged
+    ones. ratios: per group, the sum of squared whitened residuals at the declared levels over its
+    redundancy at the learned optimum (the chi-square per degree of freedom the declared model
+    gives: 1 when it fits). redundancy: per group. chi2_dof: all measurement groups together at the
+    declared levels. state: the batch optimum at the learned levels. outliers: (frame, marker_id)
+    the robust optimum down-weighted. residuals: per frame the whitened measurement residual at
+    the optimum under the learned levels. prior_distance: with a user prior, the squared
+    Mahalanobis distance between it and the estimate from the data alone (fit_check).
+    first_state: the optimum under the declared image model. With self-calibration (the corners fit
+    worse than PIXEL_MISFIT_SCALE times their noise under the declared camera and board): theta,
+    theta_sigma (estimator.solve.self_calibration.NUISANCE order), consider_covariance (6, 6) that
+    T_flange_cam's covariance gains from theta's uncertainty, and fit_after: each group's
+    chi-square per degree of freedom at the learned levels with the adjusted model."""
+
+    declared: NoiseLevels
+    learned: NoiseLevels
+    ratios: dict[str, float]
+    redundancy: dict[str, float]
+    chi2_dof: float
+    iterations: int
+    state: HandEyeState
+    outliers: set[tuple[int, int]]
+    residuals: list[np.ndarray]
+    prior_distance: float | None = None
+    time_s: float = 0.0
+    first_state: HandEyeState | None = None
+    theta: np.ndarray | None = None
+    theta_sigma: np.ndarray | None = None
+    consider_covariance: np.ndarray | None = None
+    fit_after: dict[str, float] | None = None
+
+    def adjusted(self, problem: CalibrationProblem) -> CalibrationProblem:
+        """The problem with the self-calibrated camera and board (unchanged without)."""
+        return problem if self.theta is None else adjusted_problem(problem, self.theta)
+
+    def to_dict(self) -> dict:
+        return {
+            "declared": self.declared.to_dict(),
+            "learned": self.learned.to_dict(),
+            "chi2_per_dof_declared": {**self.ratios, "all measurements": self.chi2_dof},
+            "redundancy": self.redundancy,
+            "iterations": self.iterations,
+            "outliers": len(self.outliers),
+            "time_s": self.time_s,
+            "self_calibration": None
+            if self.theta is None
+            else {
+                name: {"value": float(v), "sigma": float(s)}
+                for name, v, s in zip(NUISANCE, self.theta, self.theta_sigma, strict=True)
+            },
+        }
+
+
+def prior_conflict(data_only: HandEyeState, data_covariance: np.ndarray, prior: Prior) -> float:
+    """Squared Mahalanobis distance of the prior's mean from the data-only estimate of
+    T_flange_cam, with both covariances (6, 6) (estimator.geometry.lie convention)."""
+    e = pose_minus(prior.T_flange_cam, data_only.T_flange_cam)
+    return float(e @ np.linalg.solve(data_covariance[:6, :6] + prior.covariance, e))
+
+
+def declared_levels(problem: CalibrationProblem) -> NoiseLevels:
+    return NoiseLevels(1.0, 1.0, problem.robot_noise)
+
+
+def scaled_problem(
+    problem: CalibrationProblem, levels: NoiseLevels, leave_out: set[tuple[int, int]] = frozenset()
+) -> CalibrationProblem:
+    """The problem with its pixel and depth whitening divided by the levels' scales, its robot
+    noise replaced, and the (frame, marker_id) pairs of leave_out removed (frames left without a
+    marker are dropped)."""
+    frames = []
+    for f in problem.frames:
+        markers = [_scaled(m, levels) for m in f.markers if (f.frame, m.marker_id) not in leave_out]
+        if markers:
+            frames.append(replace(f, markers=markers))
+    return replace(problem, frames=frames, robot_noise=levels.robot)
+
+
+def _scaled(m: MarkerMeasurement, levels: NoiseLevels) -> MarkerMeasurement:
+    if levels.pixel_scale == 1.0 and levels.depth_scale == 1.0:
+        return m
+    scale = np.ones(len(m.whitening))
+    scale[: m.pixel_rows] = 1.0 / levels.pixel_scale
+    scale[m.pixel_rows :] = 1.0 / levels.depth_scale
+    return replace(m, whitening=m.whitening * scale[:, None])
+
+
+def _row_groups(
+    objective: BatchObjective | SelfCalibrationObjective, problem: CalibrationProblem, self_calibrate: bool
+) -> np.ndarray:
+    """The group index (into GROUPS, -1 for the state's prior rows) of every residual row."""
+    labels = [np.full(objective.n + (6 if objective.prior is not None else 0), -1)]
+    for f in problem.frames:
+        for m in f.markers:
+            labels.append(np.r_[np.zeros(m.pixel_rows, int), np.ones(len(m.whitening) - m.pixel_rows, int)])
+        if objective.with_robot:
+            labels.append(np.array([2, 2, 2, 3, 3, 3]))
+    if self_calibrate:
+        labels.append(np.full(len(NUISANCE), -1))
+    return np.concatenate(labels)
+
+
+def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
+    """Iterated variance-component estimation (see the module doc). The state is the batch
+    optimum's map model and depth-scale choice (options)."""
+    started = time.perf_counter()
+    with threadpool_limits(limits=1, user_api="blas"):
+        learned = _learn_noise(problem, options)
+    learned.time_s = time.perf_counter() - started
+    return learned
+
+
+def _objective(
+    problem: CalibrationProblem,
+    start: HandEyeState,
+    P0: np.ndarray,
+    options: MethodOptions,
+    self_calibrate: bool,
+) -> BatchObjective | SelfCalibrationObjective:
+    def make(p: CalibrationProblem) -> BatchObjective:
+        return BatchObjective(p, start, P0, options.prior)
+
+    return SelfCalibrationObjective(problem, make) if self_calibrate else make(problem)
+
+
+@dataclass
+class _Pass:
+    """One variance-component estimation to convergence: the levels, the parameters at the
+    optimum, each group's (squares, redundancy) and the iterations run."""
+
+    levels: NoiseLevels
+    params: np.ndarray
+    factors: dict[str, tuple[float, float]]
+    iterations: int
+
+
+def _vce(
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    start: HandEyeState,
+    P0: np.ndarray,
+    levels: NoiseLevels,
+    params: np.ndarray | None,
+    self_calibrate: bool,
+) -> _Pass:
+    declared = declared_levels(problem)
+    robot_start = levels.robot if problem.robot_noise.is_zero else problem.robot_noise
+    iterations = 0
+    while iterations < MAX_ITERATIONS:
+        iterations += 1
+        scaled = scaled_problem(problem, levels)
+        objective = _objective(scaled, start, P0, options, self_calibrate)
+        x0 = np.zeros(objective.size) if params is None else params
+        params, _ = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
+        r = objective.residuals(params)
+        J = objective.jacobian(params)
+        if options.robust:
+            J = J * np.sqrt(huber_weights(r))[:, None]
+        hat = np.einsum("ij,ji->i", J, np.linalg.solve(J.T @ J, J.T))
+        groups = _row_groups(objective, scaled, self_calibrate)
+        squares = np.minimum(r**2, HUBER_SCALE**2) / _CLIPPED_SQUARE if options.robust else r**2
+        factors = {}
+        for g, name in enumerate(GROUPS):
+            rows = groups == g
+            redundancy = float(np.sum(1.0 - hat[rows]))
+            if rows.any() and redundancy > 0.5:
+                factors[name] = (float(np.sum(squares[rows])), redundancy)
+        new_levels = _updated(levels, declared, robot_start, factors)
+        change = max(abs(_sigma(new_levels, g) / _sigma(levels, g) - 1.0) for g in GROUPS)
+        levels = new_levels
+        if change < LEVEL_TOLERANCE:
+            break
+    return _Pass(levels, params, factors, iterations)
+
+
+def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
+    declared = declared_levels(problem)
+    robot = problem.robot_noise if not problem.robot_noise.is_zero else ROBOT_FLOOR
+    start = initial_state(problem, options).state
+    P0 = initial_covariance(start, options)
+    first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, False)
+    declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
+    first_state = start.plus(first.params[: start.dim])
+    final, theta, theta_sigma, consider = first, None, None, None
+    if first.levels.pixel_scale > PIXEL_MISFIT_SCALE:
+        x0 = np.concatenate([first.params, np.zeros(len(NUISANCE))])
+        final = _vce(problem, options, start, P0, first.levels, x0, True)
+        theta = final.params[-len(NUISANCE) :]
+        theta_sigma, consider = _nuisance_uncertainty(problem, final, start, P0, options)
+    adjusted = problem if theta is None else adjusted_problem(problem, theta)
+    scaled = scaled_problem(adjusted, final.levels)
+    objective = BatchObjective(scaled, start, P0, options.prior)
+    params = final.params[: objective.size]
+    frame_residuals = objective.frame_residuals(params)
+    prior_distance = None
+    if options.prior is not None:
+        prior_distance = _prior_distance(scaled, start, P0, params, options)
+    return LearnedNoise(
+        declared,
+        final.levels,
+        declared_ratios,
+        {name: red for name, (_, red) in first.factors.items()},
+        chi2_dof,
+        first.iterations + (final.iterations if theta is not None else 0),
+        start.plus(params[: objective.n]),
+        outliers(scaled, frame_residuals) if options.robust else set(),
+        frame_residuals,
+        prior_distance,
+        first_state=first_state,
+        theta=theta,
+        theta_sigma=theta_sigma,
+        consider_covariance=consider,
+        fit_after={name: s / red for name, (s, red) in final.factors.items()} if theta is not None else None,
+    )
+
+
+def _nuisance_uncertainty(
+    problem: CalibrationProblem, final: _Pass, start: HandEyeState, P0: np.ndarray, options: MethodOptions
+) -> tuple[np.ndarray, np.ndarray]:
+    """theta's 1-sigma (NUISANCE,) and the (6, 6) covariance T_flange_cam gains from theta being
+    estimated (its covariance with theta free minus with theta fixed: a method that solves the
+    adjusted problem with theta fixed adds it)."""
+    scaled = scaled_problem(problem, final.levels)
+    objective = _objective(scaled, start, P0, options, True)
+    r = objective.residuals(final.params)
+    J = objective.jacobian(final.params)
+    if options.robust:
+        J = J * np.sqrt(huber_weights(r))[:, None]
+    N = J.T @ J
+    p = len(NUISANCE)
+    free = np.linalg.inv(N)
+    fixed = np.linalg.inv(N[:-p, :-p])
+    to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
+    extra = to_local @ (free[:6, :6] - fixed[:6, :6]) @ to_local.T
+    return np.sqrt(np.diag(free)[-p:]), 0.5 * (extra + extra.T)
+
+
+def _prior_distance(
+    scaled: CalibrationProblem,
+    start: HandEyeState,
+    P0: np.ndarray,
+    params: np.ndarray,
+    options: MethodOptions,
+) -> float:
+    """Squared Mahalanobis distance of the user's prior from the data-only batch optimum."""
+    objective = BatchObjective(scaled, start, P0, None)
+    x, _ = gauss_newton(objective, params, options.robust)
+    J = objective.jacobian(x)
+    to_local = start.plus_jacobian(x[: objective.n])
+    cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
+    return prior_conflict(start.plus(x[: objective.n]), cov, options.prior)
+
+
+def _sigma(levels: NoiseLevels, name: str) -> float:
+    return {
+        "pixels": levels.pixel_scale,
+        "depth": levels.depth_scale,
+        "robot_translation": levels.robot.translation_sigma_m,
+        "robot_rotation": levels.robot.rotation_sigma_rad,
+    }[name]
+
+
+def _updated(
+    levels: NoiseLevels, declared: NoiseLevels, robot_start: RobotPoseNoise, factors: dict
+) -> NoiseLevels:
+    """Each group's level rescaled by its ratio, shrunk toward the declared level (PRIOR_DOF)."""
+    base = replace(declared, robot=robot_start)
+    new = {}
+    for name in GROUPS:
+        current = _sigma(levels, name)
+        if name not in factors:
+            new[name] = current
+            continue
+        squares, redundancy = factors[name]
+        prior = _sigma(base, name)
+        new[name] = float(np.sqrt((squares * current**2 + PRIOR_DOF * prior**2) / (redundancy + PRIOR_DOF)))
+    return NoiseLevels(
+        new["pixels"], new["depth"], RobotPoseNoise(new["robot_translation"], new["robot_rotation"])
+    )
+
+
+def _declared_fit(
+    levels: NoiseLevels, declared: NoiseLevels, robot_start: RobotPoseNoise, factors: dict
+) -> tuple[dict[str, float], float]:
+    """The chi-square per degree of freedom each group (and the measurements together) would show
+    at the declared levels: the squares at the learned levels times (learned / declared)^2."""
+    base = replace(declared, robot=robot_start)
+    ratios, total, total_red = {}, 0.0, 0.0
+    for name, (squares, redundancy) in factors.items():
+        at_declared = squares * (_sigma(levels, name) / _sigma(base, name)) ** 2
+        ratios[name] = at_declared / redundancy
+        if name in ("pixels", "depth"):
+            total, total_red = total + at_declared, total_red + redundancy
+    return ratios, total / total_red if total_red > 0 else float("nan")
