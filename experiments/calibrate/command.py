@@ -23,13 +23,13 @@ from estimator.solve.problem import (
     build_problem,
     dataset_robot_noise,
 )
+from experiments.calibrate.comparison import format_comparison
 from experiments.calibrate.report import (
     MethodFailure,
     Result,
     calibration_to_dict,
     check_json_path,
     format_calibration,
-    format_comparison,
     result_to_dict,
     write_json,
 )
