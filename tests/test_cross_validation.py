@@ -84,7 +84,7 @@ def _pooled(values: list[float]) -> float:
 
 
 def test_on_the_ideal_scene_loo_is_the_calibration_error_plus_the_views_own_noise() -> None:
-    """Measured (4 seeds, ekf): loo 0.50 px / 0.35 mm, floor 0.50 px / 0.34 mm, the true board-point
+    """Measured (4 seeds, ekf): loo 0.50 px / 0.36 mm, floor 0.50 px / 0.34 mm, the true board-point
     error 0.13 mm. The view's noise dominates: the LOO mm is 2-4x the calibration's own error here."""
     loo_px, loo_mm, floor_px, floor_mm, true_mm, noise_mm = [], [], [], [], [], []
     for seed in range(4):

@@ -6,6 +6,7 @@ import numpy as np
 
 from estimator.solve.calibration import Calibration
 from estimator.solve.methods import DEFAULT_METHOD
+from experiments.calibrate.loo import loo_cells, loo_table_note
 from experiments.calibrate.report import MethodFailure, Result, format_vector, ground_truth_errors, rss
 
 
@@ -22,7 +23,7 @@ def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str
     x, y, z = 1e3 * r.T_flange_cam[:3, 3]
     row = f"{r.method:<18} {x:>+9.3f} {y:>+9.3f} {z:>+9.3f}"
     row += f" {_cell(rss(r.sigma_translation_mm), '.4f', 10)} {_cell(rss(r.sigma_rotation_deg), '.5f', 11)}"
-    row += f" {r.residual_rms_px:>9.3f} {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
+    row += f" {r.residual_rms_px:>9.3f}{loo_cells(r)} {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
     if T_true is not None:
         e = ground_truth_errors(r, T_true)
         row += f" {e['error_translation_mm']:>9.3f} {e['error_rotation_deg']:>9.4f}"
@@ -30,11 +31,12 @@ def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str
 
 
 def format_comparison(results: list[Result], T_true: np.ndarray | None = None) -> str:
-    """One row per method: translation, root-sum-square sigmas, residual, time, and errors with T_true."""
+    """One row per method: translation, root-sum-square sigmas, residual, leave-one-frame-out figures,
+    time, and errors with T_true."""
     header = (
         f"{'method':<18} {'x [mm]':>9} {'y [mm]':>9} {'z [mm]':>9} {'sigma_t mm':>10} {'sigma_r deg':>11}"
     )
-    header += f" {'resid px':>9} {'time ms':>9}" + (
+    header += f" {'resid px':>9} {'loo px':>8} {'loo mm':>8} {'time ms':>9}" + (
         f" {'err mm':>9} {'err deg':>9}" if T_true is not None else ""
     )
     lines = [header]
@@ -65,4 +67,5 @@ def _comparison_notes(results: list[Result]) -> list[str]:
         for w in r.warnings:
             warnings.setdefault(w, []).append(r.method)
     lines += [f"warning ({', '.join(methods)}): {w}" for w, methods in warnings.items()]
-    return lines
+    note = loo_table_note(done)
+    return ([note] if note else []) + lines

@@ -14,6 +14,7 @@ from estimator.geometry.lie import pose_minus, so3_log
 from estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
 from estimator.io.files import write_atomic
 from estimator.solve.calibration import Calibration
+from experiments.calibrate.loo import format_loo, loo_to_dict
 
 TRANSFORM_MEANING = (
     "T_flange_cam: the camera optical frame (x right, y down, z forward) in the flange (tool0) frame; "
@@ -147,7 +148,7 @@ def _format_run(cal: Calibration) -> list[str]:
 def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> str:
     """The full text report of one Calibration; with T_true (4, 4) its errors against it."""
     lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam), *_format_uncertainty(cal)]
-    lines += [*_format_residuals(cal), *_format_run(cal)]
+    lines += [*_format_residuals(cal), *format_loo(cal), *_format_run(cal)]
     lines += [f"warning: {w}" for w in cal.warnings] or ["warnings: none"]
     if T_true is not None:
         e = ground_truth_errors(cal, T_true)
@@ -198,6 +199,7 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
         "time_s": d.get("time_s"),
         "initialisation": d.get("initialisation"),
         "observability": None if report is None else report.to_dict(),
+        **loo_to_dict(cal),
         "warnings": list(cal.warnings),
     }
     if T_true is not None:
