@@ -93,6 +93,16 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--depth-scale", action="store_true", help="also estimate a depth scale factor")
     p.add_argument("--no-depth", action="store_true", help="use only the pixels, not the depth")
     p.add_argument(
+        "--no-loo",
+        action="store_true",
+        help="skip the leave-one-frame-out prediction figures (they cost one calibration per frame)",
+    )
+    p.add_argument(
+        "--loo-all",
+        action="store_true",
+        help="leave-one-frame-out also for methods whose folds would take over 30 s (batch on real data)",
+    )
+    p.add_argument(
         "--prior",
         type=Path,
         metavar="FILE",

@@ -1,5 +1,5 @@
 """`hec calibrate` end to end on the default simulated dataset: the printed report, the JSON, every method
-side by side, and clear errors for bad priors and too few frames.
+side by side, the leave-one-frame-out figures, and clear errors for bad priors and too few frames.
 
 The dataset is copied once per module (the first run detects and writes its cache; the rest reuse it).
 """
@@ -20,8 +20,11 @@ import pytest
 from estimator.geometry.transforms import pose_error
 from estimator.io.dataset import load_dataset
 from estimator.observe.observations import CACHE_FILE, load_observations, save_observations
+from estimator.solve.calibration import Calibration
+from estimator.solve.cross_validation import CrossValidation, FoldPrediction, SkippedFold
 from estimator.solve.methods import METHODS
 from estimator.solve.problem import CalibrationInputError
+from experiments.calibrate.loo import LOO_KEY, format_loo
 from experiments.calibrate.report import write_json
 from experiments.cli import main
 from tests.hec_cli import run_hec
@@ -48,8 +51,13 @@ JSON_KEYS = {
     "iterations",
     "time_s",
     "observability",
+    "leave_one_frame_out",
     "warnings",
 }
+LOO_LINE = re.compile(
+    r"leave-one-frame-out prediction: (\d+\.\d\d) px RMS, (\d+\.\d\d) mm RMS in the base frame "
+    r"\(17 folds, \d+\.\d s\)"
+)
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +147,7 @@ def test_method_all_prints_a_row_per_method_and_a_failure_row(
     monkeypatch.setitem(METHODS, "opencv-tsai", broken)
     out = tmp_path / "all.json"
     code, stdout, stderr = run_hec(
-        ["calibrate", str(dataset), "--method", "all", "--json", str(out), "--quiet"]
+        ["calibrate", str(dataset), "--method", "all", "--json", str(out), "--quiet", "--no-loo"]
     )
     assert code == 0, stderr
     lines = stdout.splitlines()
@@ -149,6 +157,9 @@ def test_method_all_prints_a_row_per_method_and_a_failure_row(
     assert list(rows) == list(METHODS)
     assert rows["opencv-tsai"].endswith("failed: the views do not span two axes")
     assert "failed" not in rows["ekf"] and "failed" not in rows["batch"]
+    assert "loo px" in lines[header] and "loo mm" in lines[header]
+    assert rows["ekf"].split()[7:9] == ["-", "-"]  # after x y z, the sigmas and the residual
+    assert "loo px, loo mm: not run (--no-loo)" in stdout
     results = json.loads(out.read_text())["results"]
     assert [r["method"] for r in results] == list(METHODS)
     assert results[list(METHODS).index("opencv-tsai")] == {
@@ -156,6 +167,122 @@ def test_method_all_prints_a_row_per_method_and_a_failure_row(
         "error": "opencv-tsai: the views do not span two axes",
     }
     assert JSON_KEYS <= set(results[list(METHODS).index("ekf")])
+
+
+def test_prints_and_writes_the_leave_one_frame_out_figures(first_run) -> None:
+    code, stdout, stderr, out = first_run
+    assert code == 0, stderr
+    match = LOO_LINE.search(stdout)
+    assert match, stdout
+    data = json.loads(out.read_text())
+    loo = data["leave_one_frame_out"]
+    assert data["leave_one_frame_out_settings"] == {"enabled": True, "budget_s": 30.0}
+    assert data["leave_one_frame_out_not_run"] is None
+    assert loo["folds_run"] == 17 and loo["folds_skipped"] == 0 and loo["skipped"] == []
+    assert [f["frame"] for f in loo["frames"]] == list(range(17))
+    assert set(loo["frames"][0]) == {"frame", "rms_px", "rms_mm", "floor_px", "floor_mm", "corners", "time_s"}
+    px, mm = map(float, match.groups())
+    assert px == pytest.approx(loo["rms_px"], abs=0.005) and mm == pytest.approx(loo["rms_mm"], abs=0.005)
+    # An unseen view is predicted worse than the fitted ones, and here about as well as its noise allows.
+    assert data["residual_rms_px"] < loo["rms_px"] < 1.5 * loo["floor_px"], loo
+    assert 0.05 < loo["rms_mm"] < 1.5 * loo["floor_mm"], loo
+    assert "a new view's own noise alone (corners, robot pose, its PnP pose) gives" in stdout
+
+
+def test_no_loo_skips_the_folds_and_says_so(dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r.json"
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--no-loo", "--json", str(out), "--quiet"])
+    assert code == 0, stderr
+    assert "leave-one-frame-out prediction: not run (--no-loo)" in stdout and not LOO_LINE.search(stdout)
+    data = json.loads(out.read_text())
+    assert data["leave_one_frame_out"] is None and data["leave_one_frame_out_settings"]["enabled"] is False
+    assert data["leave_one_frame_out_not_run"] == "not run (--no-loo)"
+
+
+def test_methods_whose_folds_would_take_too_long_are_not_cross_validated(
+    dataset: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The budget: 17 folds of a method that takes 2 s are 34 s, over 30 s; --loo-all runs them anyway."""
+    ekf = METHODS["ekf"]
+
+    def slow(problem, options, observations):
+        result = ekf(problem, options, observations)
+        result.diagnostics["time_s"] = 2.0
+        return result
+
+    monkeypatch.setitem(METHODS, "ekf", slow)
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet"])
+    assert code == 0, stderr
+    assert (
+        "leave-one-frame-out prediction: not run: about 34 s (17 folds x 2.0 s), over the 30 s budget; "
+        "--loo-all runs it"
+    ) in stdout
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet", "--loo-all"])
+    assert code == 0, stderr
+    assert LOO_LINE.search(stdout), stdout
+
+
+def test_method_all_has_the_leave_one_frame_out_columns(
+    dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without the slow methods (batch's 17 folds alone take 15-30 s)."""
+    for name in ("iekf", "ukf", "batch"):
+        monkeypatch.delitem(METHODS, name)
+    out = tmp_path / "all.json"
+    code, stdout, stderr = run_hec(
+        ["calibrate", str(dataset), "--method", "all", "--json", str(out), "--quiet"]
+    )
+    assert code == 0, stderr
+    lines = stdout.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("method "))
+    rows = {line.split()[0]: line.split() for line in lines[header + 1 : header + 1 + len(METHODS)]}
+    results = {r["method"]: r for r in json.loads(out.read_text())["results"]}
+    for name in ("ekf", "seed-ekf", "opencv-park"):
+        loo = results[name]["leave_one_frame_out"]
+        assert loo["folds_run"] == 17
+        assert [float(v) for v in rows[name][7:9]] == pytest.approx([loo["rms_px"], loo["rms_mm"]], abs=6e-4)
+        assert loo["rms_mm"] < 1.0
+    # opencv-andreff's wrong answer (0.4 m off) is plain from its LOO figures alone
+    assert float(rows["opencv-andreff"][8]) > 50
+    assert "error" in results["opencv-li"] and "leave_one_frame_out" not in results["opencv-li"]
+    assert "loo px, loo mm: leave-one-frame-out prediction RMS" in stdout
+
+
+def _with_loo(folds: list[FoldPrediction], skipped: list[SkippedFold]) -> Calibration:
+    px = [f.rms_px for f in folds]
+    mm = [f.rms_mm for f in folds]
+    cv = CrossValidation(
+        folds,
+        skipped,
+        float(np.sqrt(np.mean(np.square(px)))) if px else float("nan"),
+        float(np.sqrt(np.mean(np.square(mm)))) if mm else float("nan"),
+        0.3,
+        0.2,
+        "board pose",
+        1.0,
+    )
+    return Calibration("ekf", np.eye(4), None, np.eye(4), None, [], 0, 0, diagnostics={LOO_KEY: cv})
+
+
+def test_the_report_names_a_frame_that_disagrees_and_the_skipped_folds() -> None:
+    folds = [FoldPrediction(i, 0.3, 0.2, 0.3, 0.2, 32, 0.01) for i in range(8)]
+    folds[5] = FoldPrediction(5, 6.0, 5.0, 0.3, 0.2, 32, 0.01)
+    lines = format_loo(_with_loo(folds, [SkippedFold(9, "the views do not span two axes")]))
+    text = "\n".join(lines)
+    assert lines[0] == (
+        "leave-one-frame-out prediction: 2.14 px RMS, 1.78 mm RMS in the base frame (8 folds, 1.0 s)"
+    )
+    assert "worst frames: 5 (6.00 px, 5.00 mm), " in text
+    assert "skipped folds (1): frame 9: the views do not span two axes" in text
+    assert "frame(s) 5 predicted more than 3x worse than the median frame (0.20 mm)" in text
+    assert "predicted worse than their noise explains" in text
+
+    quiet = "\n".join(format_loo(_with_loo(folds[:5], [])))
+    assert "note:" not in quiet and "skipped" not in quiet
+    none_ran = format_loo(_with_loo([], [SkippedFold(0, "2 frames left, need 3")]))
+    assert none_ran == [
+        "leave-one-frame-out prediction: no fold could calibrate (frame 0: 2 frames left, need 3)"
+    ]
 
 
 def test_a_previous_json_output_is_a_prior(first_run, dataset: Path) -> None:

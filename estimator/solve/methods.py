@@ -59,14 +59,23 @@ def solve(
     if not needs_learned_noise(name, options):
         return METHODS[name](problem, options, observations)
     learned = learned or learn_noise(problem, options)
-    # The self-calibrated camera and board, if the pass needed them (seed-ekf measures points
-    # from the observations themselves, with the declared camera).
-    adjusted = learned.adjusted(problem) if name != "seed-ekf" else problem
-    solved = scaled_problem(adjusted, learned.learned, learned.outliers)
-    # The learning pass over all frames found the outliers; only batch keeps its robust loss.
-    result = METHODS[name](solved, replace(options, robust=name == "batch"), observations)
+    adjusted, solved, solved_options = learned_setup(name, problem, options, learned)
+    result = METHODS[name](solved, solved_options, observations)
     _account_for_learning(problem, adjusted, result, learned)
     return result
+
+
+def learned_setup(
+    name: str, problem: CalibrationProblem, options: MethodOptions, learned: LearnedNoise
+) -> tuple[CalibrationProblem, CalibrationProblem, MethodOptions]:
+    """What a noise-modelling method solves with the learned noise: the problem with the
+    self-calibrated camera and board if the learning pass needed them (not for seed-ekf, which
+    measures points from the observations with the declared camera), that problem at the learned
+    levels without the pass's outliers, and the options (the pass over all frames found the
+    outliers, so only batch keeps its robust loss)."""
+    adjusted = learned.adjusted(problem) if name != "seed-ekf" else problem
+    solved = scaled_problem(adjusted, learned.learned, learned.outliers)
+    return adjusted, solved, replace(options, robust=name == "batch")
 
 
 def run_method(

@@ -24,13 +24,14 @@ from estimator.solve.problem import (
     build_problem,
     dataset_robot_noise,
 )
+from experiments.calibrate.comparison import format_comparison
+from experiments.calibrate.loo import BUDGET_S, add_cross_validation
 from experiments.calibrate.report import (
     MethodFailure,
     Result,
     calibration_to_dict,
     check_json_path,
     format_calibration,
-    format_comparison,
     result_to_dict,
     write_json,
 )
@@ -47,7 +48,9 @@ class PriorFileError(ValueError):
 @dataclass(frozen=True)
 class CalibrateSettings:
     """What `hec calibrate` was asked for. method: a name in METHODS or 'all'.
-    robot_sigma_mm / robot_sigma_deg: override the dataset's robot pose noise when given."""
+    robot_sigma_mm / robot_sigma_deg: override the dataset's robot pose noise when given.
+    loo: leave-one-frame-out cross-validation of the methods run (one calibration per frame), of those
+    whose folds fit in experiments.calibrate.loo.BUDGET_S unless loo_all."""
 
     method: str = DEFAULT_METHOD
     map_model: str = "board"
@@ -56,6 +59,12 @@ class CalibrateSettings:
     prior_file: Path | None = None
     robot_sigma_mm: float | None = None
     robot_sigma_deg: float | None = None
+    loo: bool = True
+    loo_all: bool = False
+
+    @property
+    def loo_budget_s(self) -> float | None:
+        return None if self.loo_all else BUDGET_S
 
     @property
     def methods(self) -> list[str]:
@@ -148,9 +157,12 @@ def run_methods(
     options: MethodOptions,
     observations: list[FrameObservations],
     quiet: bool = True,
+    loo: bool = False,
+    loo_budget_s: float | None = BUDGET_S,
 ) -> list[Result]:
     """Each method on the same problem. With several, a CalibrationInputError becomes a MethodFailure;
-    with one, it is raised."""
+    with one, it is raised. loo: cross-validate each result whose folds fit in loo_budget_s seconds
+    (None: any), experiments.calibrate.loo; the others say why not."""
     results: list[Result] = []
     learned = None  # learned once, shared by the methods that model the noise
     bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
@@ -159,21 +171,15 @@ def run_methods(
         try:
             if learned is None and needs_learned_noise(name, options):
                 learned = learn_noise(problem, options)
-            results.append(run_method(name, problem, options, observations, learned))
+            cal = run_method(name, problem, options, observations, learned)
         except CalibrationInputError as exc:
             if len(names) == 1:
                 raise
             results.append(MethodFailure(name, str(exc)))
+            continue
+        add_cross_validation(cal, name, problem, options, observations, loo, loo_budget_s, quiet)
+        results.append(cal)
     return results
-
-
-# ---------------------------------------------------------------- numbers shared by text and JSON
-
-
-# ---------------------------------------------------------------- text
-
-
-# ---------------------------------------------------------------- JSON
 
 
 # ---------------------------------------------------------------- the command
@@ -191,6 +197,7 @@ def _context(
         "map_model": settings.map_model,
         "estimate_depth_scale": settings.estimate_depth_scale,
         "prior_file": None if settings.prior_file is None else str(settings.prior_file),
+        "leave_one_frame_out_settings": {"enabled": settings.loo, "budget_s": settings.loo_budget_s},
         "robot_pose_noise": problem.robot_noise.to_dict() | {"source": noise_source},
     }
 
@@ -253,7 +260,9 @@ def calibrate_dataset(
         observations = without_depth(observations)
     problem = build_problem(observations, dataset.board, dataset.intrinsics, noise, settings.use_depth)
     _note_ignored_options(settings)
-    results = run_methods(settings.methods, problem, options, observations, quiet)
+    results = run_methods(
+        settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
+    )
     T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
     _print_header(dataset, problem, settings, source, noise_source)
     if settings.method == ALL_METHODS:
@@ -282,6 +291,8 @@ def run(args: argparse.Namespace) -> int:
         prior_file=args.prior,
         robot_sigma_mm=args.robot_sigma_mm,
         robot_sigma_deg=args.robot_sigma_deg,
+        loo=not args.no_loo,
+        loo_all=args.loo_all,
     )
     results = calibrate_dataset(args.dataset, settings, args.json, args.quiet)
     if not any(isinstance(r, Calibration) for r in results):

@@ -1,5 +1,5 @@
-"""The text and JSON forms of a calibration result (format_calibration, calibration_to_dict) and
-the comparison table of several methods (format_comparison), shared by every command that reports."""
+"""The text and JSON forms of a calibration result (format_calibration, calibration_to_dict), shared by
+every command that reports (the comparison table of several methods is experiments.calibrate.comparison)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from estimator.geometry.lie import pose_minus, so3_log
 from estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
 from estimator.io.files import write_atomic
 from estimator.solve.calibration import Calibration
-from estimator.solve.methods import DEFAULT_METHOD
 from estimator.solve.problem import RobotPoseNoise
+from experiments.calibrate.loo import format_loo, loo_to_dict
 
 TRANSFORM_MEANING = (
     "T_flange_cam: the camera optical frame (x right, y down, z forward) in the flange (tool0) frame; "
@@ -68,7 +68,7 @@ def _worst_frames(cal: Calibration) -> list[tuple[int, float]]:
     return sorted(cal.frame_residuals().items(), key=lambda item: -item[1])[:WORST_SHOWN]
 
 
-def _rss(values: np.ndarray | None) -> float | None:
+def rss(values: np.ndarray | None) -> float | None:
     return None if values is None else float(np.sqrt(np.sum(np.square(values))))
 
 
@@ -76,7 +76,7 @@ def format_matrix(T: np.ndarray) -> str:
     return "\n".join("  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T)
 
 
-def _vector(values: Iterable[float], fmt: str) -> str:
+def format_vector(values: Iterable[float], fmt: str) -> str:
     return " ".join(format(float(v), fmt) for v in values)
 
 
@@ -85,11 +85,11 @@ def _format_pose(T: np.ndarray) -> list[str]:
     return [
         TRANSFORM_MEANING,
         format_matrix(T),
-        f"  translation [mm]: {_vector(n['translation_mm'], '+.3f')}",
-        f"  quaternion (w x y z): {_vector(n['quaternion_wxyz'], '+.6f')}",
-        f"  rotation vector [rad]: {_vector(n['rotation_vector_rad'], '+.6f')}"
+        f"  translation [mm]: {format_vector(n['translation_mm'], '+.3f')}",
+        f"  quaternion (w x y z): {format_vector(n['quaternion_wxyz'], '+.6f')}",
+        f"  rotation vector [rad]: {format_vector(n['rotation_vector_rad'], '+.6f')}"
         f" (angle {n['rotation_angle_deg']:.4f} deg)",
-        f"  roll-pitch-yaw [deg] ({RPY_CONVENTION}): {_vector(n['rpy_deg'], '+.4f')}",
+        f"  roll-pitch-yaw [deg] ({RPY_CONVENTION}): {format_vector(n['rpy_deg'], '+.4f')}",
     ]
 
 
@@ -99,15 +99,15 @@ def _format_uncertainty(cal: Calibration) -> list[str]:
     else:
         lines = [
             f"uncertainty (1 sigma): translation [mm] along flange x y z: "
-            f"{_vector(cal.sigma_translation_mm, '.4f')}; rotation [deg] about camera x y z: "
-            f"{_vector(cal.sigma_rotation_deg, '.5f')}"
+            f"{format_vector(cal.sigma_translation_mm, '.4f')}; rotation [deg] about camera x y z: "
+            f"{format_vector(cal.sigma_rotation_deg, '.5f')}"
         ]
     report = cal.diagnostics.get("observability")
     if report is not None and report.observable:
         lines.append(
             "Cramer-Rao bound (1 sigma, the best any method can do from these views): translation [mm] "
-            f"{_vector(report.crb_sigma_translation_mm, '.4f')}; rotation [deg] "
-            f"{_vector(report.crb_sigma_rotation_deg, '.5f')}"
+            f"{format_vector(report.crb_sigma_translation_mm, '.4f')}; rotation [deg] "
+            f"{format_vector(report.crb_sigma_rotation_deg, '.5f')}"
         )
     elif report is not None:
         lines.append("Cramer-Rao bound: not finite, the mount is not observable from these views")
@@ -137,7 +137,7 @@ def _format_residuals(cal: Calibration) -> list[str]:
     return lines
 
 
-def _chi2_dof(cal: Calibration) -> float | None:
+def chi2_dof(cal: Calibration) -> float | None:
     """The measurements' chi-square per degree of freedom at the declared noise, if known."""
     noise = cal.diagnostics.get("noise")
     return None if noise is None else noise.chi2_dof
@@ -177,7 +177,7 @@ def _format_run(cal: Calibration) -> list[str]:
 def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> str:
     """The full text report of one Calibration; with T_true (4, 4) its errors against it."""
     lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam), *_format_uncertainty(cal)]
-    lines += [*_format_residuals(cal), *_format_noise(cal), *_format_run(cal)]
+    lines += [*_format_residuals(cal), *_format_noise(cal), *format_loo(cal), *_format_run(cal)]
     lines += [f"warning: {w}" for w in cal.warnings] or ["warnings: none"]
     if T_true is not None:
         e = ground_truth_errors(cal, T_true)
@@ -191,70 +191,6 @@ def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> st
             f"rotation error {e['error_rotation_deg']:.4f} deg (geodesic){nees}"
         )
     return "\n".join(lines)
-
-
-def _cell(value: float | None, fmt: str, width: int) -> str:
-    return f"{'-':>{width}}" if value is None else f"{value:>{width}{fmt}}"
-
-
-def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str]) -> str:
-    """One table row. earlier: failure reason -> first method that gave it (updated here)."""
-    if isinstance(r, MethodFailure):
-        reason = r.error.removeprefix(f"{r.method}: ")
-        first = earlier.setdefault(reason, r.method)
-        return f"{r.method:<18} failed: " + (reason if first == r.method else f"as {first}")
-    x, y, z = 1e3 * r.T_flange_cam[:3, 3]
-    row = f"{r.method:<18} {x:>+9.3f} {y:>+9.3f} {z:>+9.3f}"
-    row += f" {_cell(_rss(r.sigma_translation_mm), '.4f', 10)} {_cell(_rss(r.sigma_rotation_deg), '.5f', 11)}"
-    row += f" {r.residual_rms_px:>9.3f} {_cell(_chi2_dof(r), '.2f', 8)}"
-    row += f" {r.observations_used:>4}/{r.observations_rejected:<4}"
-    row += f" {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
-    if T_true is not None:
-        e = ground_truth_errors(r, T_true)
-        row += f" {e['error_translation_mm']:>9.3f} {e['error_rotation_deg']:>9.4f}"
-    return row
-
-
-def format_comparison(results: list[Result], T_true: np.ndarray | None = None) -> str:
-    """One row per method: translation, root-sum-square sigmas, residual, time, and errors with T_true."""
-    header = (
-        f"{'method':<18} {'x [mm]':>9} {'y [mm]':>9} {'z [mm]':>9} {'sigma_t mm':>10} {'sigma_r deg':>11}"
-    )
-    header += f" {'resid px':>9} {'chi2/dof':>8} {'used/rej':>9} {'time ms':>9}" + (
-        f" {'err mm':>9} {'err deg':>9}" if T_true is not None else ""
-    )
-    lines = [header]
-    failures: dict[str, str] = {}
-    lines += [_comparison_row(r, T_true, failures) for r in results]
-    lines.append(
-        "sigma_t, sigma_r: root-sum-square of the 1-sigma values (translation along the flange axes, "
-        "rotation about the camera axes), '-' = no uncertainty; resid: pixel RMS at the reported flange "
-        "poses; chi2/dof: the measurements' chi-square per degree of freedom at the declared noise (1 = the "
-        "model fits, '-' = not computed); used/rej: observations used and left out; time: the method's own "
-        "(the noise learning the model-based methods share is not in it)"
-    )
-    return "\n".join(lines + _comparison_notes(results))
-
-
-def _comparison_notes(results: list[Result]) -> list[str]:
-    """The Cramer-Rao bound once, and each warning once with the methods that raised it."""
-    done = [r for r in results if isinstance(r, Calibration)]
-    lines = []
-    # The bound at the default method's estimate (any good estimate gives nearly the same).
-    shown = next((r for r in done if r.method == DEFAULT_METHOD), done[0] if done else None)
-    report = None if shown is None else shown.diagnostics.get("observability")
-    if report is not None and report.observable:
-        lines.append(
-            f"Cramer-Rao bound (1 sigma, at the {shown.method} estimate): translation [mm] "
-            f"{_vector(report.crb_sigma_translation_mm, '.4f')}; rotation [deg] "
-            f"{_vector(report.crb_sigma_rotation_deg, '.5f')}"
-        )
-    warnings: dict[str, list[str]] = {}
-    for r in done:
-        for w in r.warnings:
-            warnings.setdefault(w, []).append(r.method)
-    lines += [f"warning ({', '.join(methods)}): {w}" for w, methods in warnings.items()]
-    return lines
 
 
 def _floats(a: np.ndarray | None) -> list | None:
@@ -294,6 +230,7 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
         "observability": None if report is None else report.to_dict(),
         "noise": None if d.get("noise") is None else d["noise"].to_dict(),
         "fit": None if d.get("fit") is None else d["fit"].to_dict(),
+        **loo_to_dict(cal),
         "warnings": list(cal.warnings),
     }
     if T_true is not None:

@@ -1,0 +1,520 @@
+"""Robustness benchmark: every method on data that break the model the estimators are told, against
+the truth and the OpenCV baselines on the same data.
+
+Each case declares one noise model to the estimators and gives the data another (or the ideal
+cell, where the two agree). Measurement fidelity builds on experiments.synthetic_scenes (a random
+mount per trial, the default 17 views, 0.3 px corners, stereo depth noise, 0.1 mm / 0.01 deg
+robot noise declared); render fidelity renders every trial with MuJoCo into a temporary dataset
+and detects the board, as the render sweeps do (experiments.sweep.trials).
+
+    ideal                 declared = actual (the default scenario)
+    depth bias S + O      depth measured as (1 + S) z + O; the estimators assume none
+    arm noise Nx          reported flange poses N times noisier than the declared 0.1 mm / 0.01 deg
+    corner noise 3x       corners 3x noisier than their covariance says (measurements only)
+    board scale S         the printed board S larger than its definition (observations of the
+                          scaled board, the problem built with the nominal one)
+    realistic             models/scenarios/realistic.toml, every model error on (render only)
+
+Per case and method over the trials: median and 95th-percentile translation (mm) and rotation
+(deg) error, mean NEES (methods with a covariance), the fraction of runs that warned, the mean
+fraction of observations rejected and the failures. Then the acceptance lines of the default
+method (estimator.solve.methods.DEFAULT_METHOD) against the best OpenCV method (the lowest median
+among those that succeeded in at least half the trials, per quantity), and the median Cramer-Rao
+bound at the truth under the actual noise (root-sum-square of the 1-sigmas; a model bias such as
+a depth scale adds error no bound accounts for), beside the target, so a reader can see when no
+estimator could reach it. Exit status 1 when an acceptance line fails.
+
+Trial t of case c draws everything from numpy.random.default_rng([seed, c, t]), c the case's
+index in CASES (the same in every run), as the sweeps do; a render trial whose random mount hides
+the board from every view is drawn again (RENDER_REDRAWS).
+
+    .venv/bin/python -m experiments.bench.robustness [--trials 50] [--render-trials 20] [--seed 0]
+        [--fidelity measurements|render|both] [--workers 2] [--json OUT] [--plot OUT.png]
+"""
+
+from __future__ import annotations
+
+import os
+
+# One BLAS thread per process: the trials run in parallel processes (see experiments.bench.estimators).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+from collections import Counter  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
+from dataclasses import dataclass, replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from estimator.geometry.lie import pose_minus  # noqa: E402
+from estimator.geometry.transforms import pose_error  # noqa: E402
+from estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
+from estimator.observe.observations import camera_points  # noqa: E402
+from estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
+from estimator.solve.baselines import OPENCV_METHODS  # noqa: E402
+from estimator.solve.calibration import MethodOptions  # noqa: E402
+from estimator.solve.measurement_model import HandEyeState  # noqa: E402
+from estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method  # noqa: E402
+from estimator.solve.noise_learning import learn_noise  # noqa: E402
+from estimator.solve.observability import observability  # noqa: E402
+from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem  # noqa: E402
+from experiments.calibrate.report import check_json_path, write_json  # noqa: E402
+from experiments.sweep.parameters import MEASUREMENTS, RENDER  # noqa: E402
+from experiments.sweep.rows import SweepError  # noqa: E402
+from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene  # noqa: E402
+from sim.scenario import load_scenario, scenario_from_dict  # noqa: E402
+
+DECLARED = SyntheticNoise()  # what the estimators are told at measurement fidelity
+TARGET_RATIO = 0.8  # the default's median error must be at most this times the best OpenCV's
+NEES_RANGE = (4.0, 9.0)
+# Render fidelity: a random mount can put the camera behind the wrist (every view hidden); such a
+# trial is drawn again from default_rng([seed, case, trial, k]), k = 1, 2, ... up to this many times.
+RENDER_REDRAWS = 4
+# Warning kinds, told apart by words of the fit check and the observability check (first match).
+WARNING_KINDS = (
+    ("were left out as outliers", "rejections"),
+    ("the arm is less exact", "arm"),
+    ("the depth is biased", "depth bias"),
+    ("depth and pixels disagree", "depth noise"),
+    ("the board looks", "board scale"),
+    ("grow toward the image border", "intrinsics"),
+    ("the corners fit", "pixel noise"),
+    ("the prior disagrees", "prior"),
+    ("observable", "observability"),
+    ("poorly determined", "observability"),
+)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One way the data differ from the model. depth_bias: (scale, offset_m) of the measured depth;
+    arm_factor / corner_factor: actual over declared noise; board_scale: printed over defined size;
+    scenario: render fidelity, the preset the trial starts from."""
+
+    name: str
+    fidelity: str
+    depth_bias: tuple[float, float] = (1.0, 0.0)
+    arm_factor: float = 1.0
+    corner_factor: float = 1.0
+    board_scale: float = 1.0
+    scenario: str = "default"
+
+    @property
+    def key(self) -> str:
+        return f"{self.fidelity}: {self.name}"
+
+
+def _cases() -> list[Case]:
+    both = [
+        Case("ideal", MEASUREMENTS),
+        Case("depth bias 1% + 2 mm", MEASUREMENTS, depth_bias=(1.01, 0.002)),
+        Case("depth bias 2% + 5 mm", MEASUREMENTS, depth_bias=(1.02, 0.005)),
+        Case("board scale 1%", MEASUREMENTS, board_scale=1.01),
+        Case("board scale 2%", MEASUREMENTS, board_scale=1.02),
+    ]
+    measurements_only = [
+        Case("arm noise 3x", MEASUREMENTS, arm_factor=3.0),
+        Case("arm noise 10x", MEASUREMENTS, arm_factor=10.0),
+        Case("corner noise 3x", MEASUREMENTS, corner_factor=3.0),
+    ]
+    render = [replace(c, fidelity=RENDER) for c in both] + [Case("realistic", RENDER, scenario="realistic")]
+    return both[:3] + measurements_only + both[3:] + render
+
+
+# Append new cases at the end: a case's index is part of its trials' seeds.
+CASES: list[Case] = _cases()
+
+
+# --- inputs ------------------------------------------------------------------------------------
+
+
+def _scaled_board(scale: float):
+    """BOARD printed `scale` times its size (every length in its plane)."""
+    centers = {i: (scale * x, scale * y) for i, (x, y) in BOARD.marker_centers_m.items()}
+    size = (scale * BOARD.size_m[0], scale * BOARD.size_m[1])
+    return replace(BOARD, size_m=size, marker_size_m=scale * BOARD.marker_size_m, marker_centers_m=centers)
+
+
+def _declare_corner_sigma(observations: list, sigma_px: float) -> list:
+    """The same corners, with covariances that say sigma_px per coordinate (the points' covariances
+    recomputed from them, as the detector would report)."""
+    for obs in observations:
+        for i, m in enumerate(obs.markers):
+            factor = (sigma_px / np.sqrt(m.corners_cov[0, 0])) ** 2
+            m = replace(m, corners_cov=factor * m.corners_cov, center_cov=factor * m.center_cov)
+            points, points_cov = camera_points(m, m.depth_m, m.depth_cov, np.zeros((5, 2)), INTRINSICS)
+            obs.markers[i] = replace(m, points_cam=points, points_cov=points_cov)
+    return observations
+
+
+def measurement_inputs(case: Case, rng: np.random.Generator) -> tuple:
+    """(observations, problem the estimators get, problem with the actual noise (for the bound),
+    true T_flange_cam, T_base_board) of one measurement trial."""
+    from experiments.sweep.trials import _with_depth_bias
+
+    X = random_mount(rng)
+    robot = DECLARED.robot
+    actual = replace(
+        DECLARED,
+        corner_sigma_px=case.corner_factor * DECLARED.corner_sigma_px,
+        robot=RobotPoseNoise(
+            case.arm_factor * robot.translation_sigma_m, case.arm_factor * robot.rotation_sigma_rad
+        ),
+    )
+    if case.board_scale == 1.0:
+        observations = scene(X, rng, noise=actual)
+    else:  # scene()'s views, of the printed board
+        views = rotation_rich_waypoints(T_BASE_BOARD, X, SCENARIO.trajectory.distance_m)
+        flange = [w.T_base_flange for w in views]
+        board = _scaled_board(case.board_scale)
+        observations = synthetic_observations(board, INTRINSICS, X, T_BASE_BOARD, flange, actual, rng)
+    if case.depth_bias != (1.0, 0.0):
+        flange = [
+            w.T_base_flange for w in rotation_rich_waypoints(T_BASE_BOARD, X, SCENARIO.trajectory.distance_m)
+        ]
+        scale, offset = case.depth_bias
+        biased = scenario_from_dict(
+            {"noise": {"depth_bias": {"enabled": True, "scale": scale, "offset_m": offset}}}
+        )
+        observations = _with_depth_bias(observations, flange, X, biased, BOARD)
+    truth_problem = build_problem(observations, BOARD, INTRINSICS, actual.robot)  # its own copy
+    if case.corner_factor != 1.0:
+        observations = _declare_corner_sigma(observations, DECLARED.corner_sigma_px)
+    problem = build_problem(observations, BOARD, INTRINSICS, DECLARED.robot)
+    return observations, problem, truth_problem, X, T_BASE_BOARD
+
+
+def render_scenario(case: Case):
+    """The scenario a render trial starts from: the case's preset with its depth bias and board
+    scale (only the print scale: no bend, no marker placement error)."""
+    base = load_scenario(None if case.scenario == "default" else case.scenario)
+    data = base.to_dict()
+    if case.depth_bias != (1.0, 0.0):
+        scale, offset = case.depth_bias
+        data["noise"]["depth_bias"] = {"enabled": True, "scale": scale, "offset_m": offset}
+    if case.board_scale != 1.0:
+        e = case.board_scale - 1.0
+        board = {
+            "enabled": True,
+            "scale_error": [e, e],
+            "bend_m": [0.0, 0.0],
+            "marker_placement_sigma_m": 0.0,
+        }
+        data.setdefault("errors", {})["board"] = board
+    return scenario_from_dict(data, f"robustness case {case.name!r}", Path(base.base_dir))
+
+
+def render_inputs(case: Case, rng: np.random.Generator, seed: int, trial: int) -> tuple:
+    """As measurement_inputs, for a trial rendered into a temporary dataset and detected (a random
+    mount and the scenario's views, as a render sweep's trial)."""
+    from experiments.sweep.trials import TrialTask, _render_inputs
+
+    scenario = render_scenario(case)
+    parameters = {"mount": "random", "trajectory": "rotation-rich", "waypoints": None}
+    index = CASES.index(case)
+    task = TrialTask(
+        f"r{index:02d}-t{trial:04d}",
+        case.name,
+        index,
+        trial,
+        seed,
+        RENDER,
+        parameters,
+        (),
+        {},
+        str(Path(scenario.base_dir).resolve()),
+    )
+    observations, board, intrinsics, robot, X, T_base_board = _render_inputs(task, scenario, rng)
+    problem = build_problem(observations, board, intrinsics, robot)
+    return observations, problem, problem, X, T_base_board
+
+
+# --- one trial ---------------------------------------------------------------------------------
+
+
+def _warning_kind(text: str) -> str:
+    return next((kind for words, kind in WARNING_KINDS if words in text), text.split(":")[0][:40])
+
+
+def _rss(values) -> float:
+    total = float(np.sqrt(np.sum(np.square(values)))) if values is not None else math.nan
+    return total if math.isfinite(total) else math.nan
+
+
+def run_trial(case_index: int, seed: int, trial: int) -> dict:
+    """One trial of CASES[case_index]: the bound at the truth (mm, deg RSS) and per method the
+    errors, NEES, warning kinds and rejected fraction, or its failure."""
+    case = CASES[case_index]
+    rng = np.random.default_rng([seed, case_index, trial])
+    out = {"case": case.key, "trial": trial, "crb": [math.nan, math.nan], "methods": {}}
+    start = time.perf_counter()
+    for redraw in range(RENDER_REDRAWS + 1):
+        try:
+            if case.fidelity == MEASUREMENTS:
+                observations, problem, truth_problem, X, T_base_board = measurement_inputs(case, rng)
+            else:
+                observations, problem, truth_problem, X, T_base_board = render_inputs(case, rng, seed, trial)
+            break
+        except (CalibrationInputError, SweepError) as exc:
+            if case.fidelity == MEASUREMENTS or redraw == RENDER_REDRAWS:
+                out["methods"] = {m: {"failed": f"inputs: {exc}"} for m in METHODS}
+                return out
+            # A mount that puts the camera behind the wrist sees nothing: draw the trial again.
+            rng = np.random.default_rng([seed, case_index, trial, redraw + 1])
+            out["redrawn"] = redraw + 1
+    bound = observability(truth_problem, HandEyeState(X, T_base_board=T_base_board))
+    if bound.observable:
+        out["crb"] = [_rss(bound.crb_sigma_translation_mm), _rss(bound.crb_sigma_rotation_deg)]
+    options, learned = MethodOptions(), None
+    for method in METHODS:
+        try:
+            if learned is None and needs_learned_noise(method, options):
+                learned = learn_noise(problem, options)  # once, shared by the noise-modelling methods
+            result = run_method(method, problem, options, observations, learned)  # with the printed warnings
+        except Exception as exc:  # noqa: BLE001  (any failure of one method is that method's failure)
+            text = str(exc) if isinstance(exc, CalibrationInputError) else f"{type(exc).__name__}: {exc}"
+            out["methods"][method] = {"failed": " ".join(text.split())}
+            continue
+        error_m, error_rad = pose_error(result.T_flange_cam, X)
+        nees = None
+        if result.covariance is not None:
+            delta = pose_minus(result.T_flange_cam, X)
+            try:
+                nees = float(delta @ np.linalg.solve(result.covariance, delta))
+            except np.linalg.LinAlgError:
+                nees = math.inf
+        out["methods"][method] = {
+            "error_mm": 1e3 * error_m,
+            "error_deg": math.degrees(error_rad),
+            "nees": nees,
+            "warnings": sorted({_warning_kind(w) for w in result.warnings}),
+            "rejected": result.observations_rejected / max(problem.observation_count, 1),
+        }
+    out["time_s"] = time.perf_counter() - start
+    return out
+
+
+# --- summaries ---------------------------------------------------------------------------------
+
+
+def summarise(trials: list[dict]) -> dict:
+    """Per method over the trials: median / p95 errors, mean NEES, warned and rejected fractions,
+    failures (with one message), warning kinds; the bound's median; the acceptance lines."""
+    crb = np.array([t["crb"] for t in trials], dtype=float)
+    finite = crb[np.all(np.isfinite(crb), axis=1)]
+    summary = {
+        "trials": len(trials),
+        "redrawn": sum(1 for t in trials if t.get("redrawn")),
+        "crb_median_mm": float(np.median(finite[:, 0])) if len(finite) else None,
+        "crb_median_deg": float(np.median(finite[:, 1])) if len(finite) else None,
+        "methods": {},
+    }
+    for method in METHODS:
+        runs = [t["methods"][method] for t in trials]
+        ok = [r for r in runs if "failed" not in r]
+        failed = [r["failed"] for r in runs if "failed" in r]
+        row: dict = {"runs": len(runs), "failures": len(failed), "failure": failed[0] if failed else None}
+        if ok:
+            mm, deg = np.array([r["error_mm"] for r in ok]), np.array([r["error_deg"] for r in ok])
+            nees = [r["nees"] for r in ok if r["nees"] is not None]
+            kinds = Counter(k for r in ok for k in r["warnings"])
+            row |= {
+                "median_mm": float(np.median(mm)),
+                "p95_mm": float(np.percentile(mm, 95)),
+                "median_deg": float(np.median(deg)),
+                "p95_deg": float(np.percentile(deg, 95)),
+                "mean_nees": float(np.mean(nees)) if nees else None,
+                "warned": sum(bool(r["warnings"]) for r in ok) / len(ok),
+                "rejected": float(np.mean([r["rejected"] for r in ok])),
+                "warning_kinds": dict(kinds.most_common()),
+            }
+        summary["methods"][method] = row
+    summary["acceptance"] = acceptance(summary)
+    return summary
+
+
+def _best_opencv(rows: dict, key: str) -> str | None:
+    usable = [m for m in OPENCV_METHODS if key in rows[m] and rows[m]["failures"] <= rows[m]["runs"] / 2]
+    return min(usable, key=lambda m: rows[m][key]) if usable else None
+
+
+def acceptance(summary: dict) -> list[dict]:
+    """The default method's lines: median error <= TARGET_RATIO x the best OpenCV's (translation and
+    rotation) and mean NEES in NEES_RANGE, each {'text', 'ok'}; then the bound beside the target
+    ({'text', 'ok': None}, not a check)."""
+    rows, default = summary["methods"], summary["methods"][DEFAULT_METHOD]
+    lines, targets = [], {}
+    for key, unit, what in (("median_mm", "mm", "translation"), ("median_deg", "deg", "rotation")):
+        best = _best_opencv(rows, key)
+        head = f"default median {what} <= {TARGET_RATIO}x best OpenCV"
+        if best is None or key not in default:
+            why = "no OpenCV method succeeded" if best is None else f"{DEFAULT_METHOD} never succeeded"
+            lines.append({"text": f"{head}: FAIL ({why})", "ok": False})
+            continue
+        ratio = default[key] / rows[best][key]
+        targets[what] = (TARGET_RATIO * rows[best][key], unit)
+        ok = bool(ratio <= TARGET_RATIO)
+        detail = f"{DEFAULT_METHOD} {default[key]:.4g} {unit}, {best} {rows[best][key]:.4g} {unit}"
+        lines.append({"text": f"{head}: {'PASS' if ok else 'FAIL'} ({ratio:.2f}; {detail})", "ok": ok})
+    lo, hi = NEES_RANGE
+    nees = default.get("mean_nees")
+    ok = nees is not None and lo <= nees <= hi
+    shown = "no covariance" if nees is None else f"{DEFAULT_METHOD} {nees:.2f}"
+    lines.append({"text": f"mean NEES in [{lo:g}, {hi:g}]: {'PASS' if ok else 'FAIL'} ({shown})", "ok": ok})
+    if summary["crb_median_mm"] is None:
+        lines.append({"text": "Cramer-Rao bound: not observable", "ok": None})
+        return lines
+    bound = {"translation": (summary["crb_median_mm"], "mm"), "rotation": (summary["crb_median_deg"], "deg")}
+    parts = []
+    for what, (value, unit) in bound.items():
+        text = f"{what} {value:.4g} {unit}"
+        if what in targets:
+            target = targets[what][0]
+            text += f" (target {target:.4g}{': out of reach' if value > target else ''})"
+        parts.append(text)
+    lines.append(
+        {"text": "Cramer-Rao bound, median (RSS 1-sigma at the truth): " + ", ".join(parts), "ok": None}
+    )
+    return lines
+
+
+def format_case(key: str, summary: dict) -> list[str]:
+    """The printed table of one case, its default method's warnings and its acceptance lines."""
+    lines = [
+        f"\n## {key} ({summary['trials']} trials"
+        + (f", {summary['redrawn']} drawn again: the mount hid the board)" if summary["redrawn"] else ")"),
+        f"{'method':18s} {'med mm':>8s} {'p95 mm':>8s} {'med deg':>8s} {'p95 deg':>8s} {'NEES':>8s} "
+        f"{'warned':>6s} {'reject':>6s} {'failed':>6s}",
+    ]
+    for method, r in summary["methods"].items():
+        if "median_mm" not in r:
+            lines.append(f"{method:18s} all {r['failures']} runs failed: {r['failure'][:70]}")
+            continue
+        nees = "-" if r["mean_nees"] is None else f"{r['mean_nees']:8.2f}"
+        lines.append(
+            f"{method:18s} {r['median_mm']:8.3f} {r['p95_mm']:8.3f} {r['median_deg']:8.4f} "
+            f"{r['p95_deg']:8.4f} {nees:>8s} {r['warned']:6.0%} {r['rejected']:6.1%} {r['failures']:6d}"
+        )
+    default = summary["methods"][DEFAULT_METHOD]
+    ok_runs = default["runs"] - default["failures"]
+    if default.get("warning_kinds"):
+        kinds = ", ".join(f"{k} {n}/{ok_runs}" for k, n in default["warning_kinds"].items())
+        lines.append(f"{DEFAULT_METHOD} warnings: {kinds}")
+    for line in summary["acceptance"]:
+        lines.append(("" if line["ok"] is None else "acceptance: ") + line["text"])
+    return lines
+
+
+# --- running -----------------------------------------------------------------------------------
+
+
+def run_cases(cases: list[Case], trials: int, seed: int, workers: int, progress: bool = True) -> dict:
+    """Summaries keyed by Case.key, every trial of every case; workers <= 1 runs here, in order."""
+    jobs = [(CASES.index(c), seed, t) for c in cases for t in range(trials)]
+    results: dict[str, list[dict]] = {c.key: [] for c in cases}
+    bar = tqdm(total=len(jobs), unit="trial", disable=not progress, desc=cases[0].fidelity if cases else "")
+    if workers <= 1:
+        for job in jobs:
+            out = run_trial(*job)
+            results[out["case"]].append(out)
+            bar.update()
+    else:
+        with ProcessPoolExecutor(workers) as pool:
+            for future in as_completed([pool.submit(run_trial, *job) for job in jobs]):
+                out = future.result()
+                results[out["case"]].append(out)
+                bar.update()
+                bar.set_postfix_str(out["case"].split(": ")[1])
+    bar.close()
+    for trials_of_case in results.values():
+        trials_of_case.sort(key=lambda t: t["trial"])
+    return {key: summarise(t) for key, t in results.items()}
+
+
+def plot(summaries: dict, path: str) -> None:
+    """Median translation and rotation error per case (hec's methods, the best OpenCV method and
+    the bound) and the default method's mean NEES per case against the acceptance range."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(summaries)
+    x = np.arange(len(keys))
+    fig, axes = plt.subplots(3, 1, figsize=(max(9.0, 0.75 * len(keys) + 3), 11), sharex=True)
+    hec = [m for m in METHODS if m not in OPENCV_METHODS]
+    for ax, key, crb, unit in (
+        (axes[0], "median_mm", "crb_median_mm", "mm"),
+        (axes[1], "median_deg", "crb_median_deg", "deg"),
+    ):
+        for k, method in enumerate(hec):
+            values = [summaries[c]["methods"][method].get(key, np.nan) for c in keys]
+            ax.plot(x + 0.06 * (k - 2), values, "o", label=method, ms=6 if method == DEFAULT_METHOD else 4)
+        best = [_best_opencv(summaries[c]["methods"], key) for c in keys]
+        values = [
+            np.nan if b is None else summaries[c]["methods"][b][key] for c, b in zip(keys, best, strict=True)
+        ]
+        ax.plot(x, values, "k*", ms=9, label="best OpenCV")
+        ax.plot(x, [TARGET_RATIO * v for v in values], "k_", ms=14, label=f"{TARGET_RATIO}x best OpenCV")
+        ax.plot(x, [summaries[c][crb] or np.nan for c in keys], "rx", label="Cramer-Rao bound (RSS)")
+        ax.set_yscale("log")
+        ax.set_ylabel(f"median error, {unit}")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8, ncol=3)
+    nees = [summaries[c]["methods"][DEFAULT_METHOD].get("mean_nees") or np.nan for c in keys]
+    axes[2].bar(x, nees, color="tab:blue")
+    axes[2].axhspan(*NEES_RANGE, color="tab:green", alpha=0.2, label=f"acceptance {list(NEES_RANGE)}")
+    axes[2].set_yscale("log")
+    axes[2].set_ylabel(f"{DEFAULT_METHOD} mean NEES")
+    axes[2].legend(fontsize=8)
+    axes[2].set_xticks(x, keys, rotation=35, ha="right", fontsize=8)
+    fig.suptitle("robustness: median error per case (log scale)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--trials", type=int, default=50, help="trials per measurement case")
+    parser.add_argument("--render-trials", type=int, default=20, help="trials per render case (slow)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--fidelity", choices=(MEASUREMENTS, RENDER, "both"), default="both")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--json", help="write the summaries to this file")
+    parser.add_argument("--plot", help="write a PNG: median errors and the default's NEES per case")
+    args = parser.parse_args(argv)
+    if args.json:
+        check_json_path(Path(args.json))
+    fidelities = (MEASUREMENTS, RENDER) if args.fidelity == "both" else (args.fidelity,)
+    summaries, start = {}, time.perf_counter()
+    for fidelity in fidelities:
+        trials = args.trials if fidelity == MEASUREMENTS else args.render_trials
+        cases = [c for c in CASES if c.fidelity == fidelity]
+        summaries |= run_cases(cases, trials, args.seed, args.workers)
+    print(f"default method: {DEFAULT_METHOD}; errors against the truth; seed {args.seed}")
+    for key, summary in summaries.items():
+        print("\n".join(format_case(key, summary)))
+    failed = [
+        f"{key}: {line['text']}"
+        for key, s in summaries.items()
+        for line in s["acceptance"]
+        if line["ok"] is False
+    ]
+    print(f"\n{len(failed)} acceptance lines fail; wall time {time.perf_counter() - start:.0f} s")
+    if args.plot:
+        plot(summaries, args.plot)
+        print(f"plot: {args.plot}")
+    if args.json:
+        write_json(
+            Path(args.json), {"seed": args.seed, "default_method": DEFAULT_METHOD, "summaries": summaries}
+        )
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
