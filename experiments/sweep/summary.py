@@ -266,9 +266,15 @@ class Convergence:
 def convergence(
     problem: CalibrationProblem, T_flange_cam_true: np.ndarray, options: MethodOptions, iterated: bool = False
 ) -> Convergence:
-    """Run ekf (or iekf) over the problem's frames and keep each update's error and 1-sigma."""
+    """Run ekf (or iekf) over the problem's frames, as run_method would (with the learned noise when
+    options.learn_noise), and keep each update's error and 1-sigma."""
     from estimator.solve.filters import filter_steps
+    from estimator.solve.methods import learned_setup
+    from estimator.solve.noise_learning import learn_noise
 
+    if options.learn_noise:
+        name = "iekf" if iterated else "ekf"
+        _, problem, options = learned_setup(name, problem, options, learn_noise(problem, options))
     position = {f.frame: i + 1 for i, f in enumerate(problem.frames)}
     waypoints, errors, sigmas = [], [], []
     for step in filter_steps(problem, options, iterated):
