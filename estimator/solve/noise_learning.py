@@ -6,7 +6,8 @@ reported flange pose's translation and rotation (RobotPoseNoise). At the batch o
 with whitened residuals r_g has expected sum of squares equal to its redundancy
 rho_g = n_g - trace(H_gg) (H the hat matrix of the whitened, linearised problem) when its level is
 right. Each iteration rescales every group by its ratio ||r_g||^2 / rho_g and solves again
-(Helmert / Foerstner variance-component estimation), until the ratios are 1.
+(Helmert / Foerstner variance-component estimation), until the levels stop changing
+(LEVEL_TOLERANCE).
 
 The declared level of each group is a prior worth PRIOR_DOF degrees of freedom (an inverse-gamma
 prior: sigma^2 = (ratio * rho_g * sigma^2 + PRIOR_DOF * declared^2) / (rho_g + PRIOR_DOF)), so a
