@@ -173,8 +173,10 @@ def _depth_pattern(problem: CalibrationProblem, learned: LearnedNoise, patterns:
     level = np.sqrt(learned.ratios["depth"])
     if trend_share >= PATTERN_SHARE:
         cause = (
-            f"the depth is biased: measured = true x {1 + slope:.4f} {1e3 * offset:+.2f} mm explains "
-            f"{trend_share:.0%} of its residual (run the camera's on-chip calibration or Tare)"
+            f"measured = true x {1 + slope:.4f} {1e3 * offset:+.2f} mm explains {trend_share:.0%} of its "
+            "residual: either the depth is biased (run the camera's on-chip calibration or Tare) or the "
+            "board is printed at another scale than its definition (check the 100 mm bar: from views at one "
+            "distance the two look alike)"
         )
     else:
         cause = "no trend with distance: depth noisier than its model (spatially correlated, flying pixels?)"

@@ -16,7 +16,7 @@ from estimator.solve.fit_check import check_fit
 from estimator.solve.measurement_model import HandEyeState
 from estimator.solve.noise_learning import LearnedNoise, learn_noise, scaled_problem
 from estimator.solve.observability import observability
-from estimator.solve.problem import CalibrationInputError, CalibrationProblem
+from estimator.solve.problem import MIN_FRAMES, CalibrationInputError, CalibrationProblem
 from estimator.solve.seed_ekf import seed_ekf
 from estimator.solve.ukf import ukf
 
@@ -37,6 +37,10 @@ DEFAULT_METHOD = "ekf"
 # The methods that model the noise (and so learn it with options.learn_noise); the OpenCV
 # baselines weigh every view alike.
 NOISE_MODEL_METHODS = ("seed-ekf", "ekf", "iekf", "ukf", "batch")
+# Corners that miss by this much (RMS) at the learned optimum do not come from this board and camera.
+MAX_CORNER_RMS_PX = 25.0
+# More than this share of observations rejected against the declared noise gets a warning.
+MAX_REJECTED_FRACTION = 0.10
 
 
 def needs_learned_noise(name: str, options: MethodOptions) -> bool:
@@ -57,12 +61,45 @@ def solve(
     if name not in METHODS:
         raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)} or 'all'")
     if not needs_learned_noise(name, options):
-        return METHODS[name](problem, options, observations)
+        result = METHODS[name](problem, options, observations)
+        rejected = result.observations_rejected
+        if rejected > MAX_REJECTED_FRACTION * problem.observation_count:
+            result.warnings.append(
+                f"{rejected} of {problem.observation_count} observations were rejected against the declared "
+                "noise: it is likely too small for these data, or the model does not fit them (learning the "
+                "noise from the data, the default, says which)"
+            )
+        return result
     learned = learned or learn_noise(problem, options)
     adjusted, solved, solved_options = learned_setup(name, problem, options, learned)
+    _check_usable(problem, adjusted, solved, learned)
     result = METHODS[name](solved, solved_options, observations)
     _account_for_learning(problem, adjusted, result, learned)
     return result
+
+
+def _check_usable(
+    problem: CalibrationProblem,
+    adjusted: CalibrationProblem,
+    solved: CalibrationProblem,
+    learned: LearnedNoise,
+) -> None:
+    """CalibrationInputError when the learning pass left too little to calibrate from, or when
+    nothing fits: the corners miss by MAX_CORNER_RMS_PX or more even at the learned optimum."""
+    left_out = len(learned.outliers)
+    if len(solved.frames) < MIN_FRAMES:
+        raise CalibrationInputError(
+            f"{left_out} of {problem.observation_count} observations were rejected as outliers, leaving "
+            f"{len(solved.frames)} frames (at least {MIN_FRAMES} needed): the model does not fit them "
+            "(wrong board definition, intrinsics or robot poses?)"
+        )
+    used = [r.rms_px for r in marker_residuals(adjusted, learned.state, learned.outliers) if r.used]
+    rms = float(np.sqrt(np.mean(np.square(used))))
+    if rms >= MAX_CORNER_RMS_PX:
+        raise CalibrationInputError(
+            f"the corners do not fit any mount: RMS residual {rms:.0f} px at the best estimate with the "
+            "noise learned from the data (wrong board definition, marker IDs, intrinsics or poses?)"
+        )
 
 
 def learned_setup(
