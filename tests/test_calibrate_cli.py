@@ -158,7 +158,7 @@ def test_method_all_prints_a_row_per_method_and_a_failure_row(
     assert rows["opencv-tsai"].endswith("failed: the views do not span two axes")
     assert "failed" not in rows["ekf"] and "failed" not in rows["batch"]
     assert "loo px" in lines[header] and "loo mm" in lines[header]
-    assert rows["ekf"].split()[7:9] == ["-", "-"]  # after x y z, the sigmas and the residual
+    assert rows["ekf"].split()[9:11] == ["-", "-"]  # after x y z, the sigmas, residual, chi2/dof, used/rej
     assert "loo px, loo mm: not run (--no-loo)" in stdout
     results = json.loads(out.read_text())["results"]
     assert [r["method"] for r in results] == list(METHODS)
@@ -240,10 +240,10 @@ def test_method_all_has_the_leave_one_frame_out_columns(
     for name in ("ekf", "seed-ekf", "opencv-park"):
         loo = results[name]["leave_one_frame_out"]
         assert loo["folds_run"] == 17
-        assert [float(v) for v in rows[name][7:9]] == pytest.approx([loo["rms_px"], loo["rms_mm"]], abs=6e-4)
+        assert [float(v) for v in rows[name][9:11]] == pytest.approx([loo["rms_px"], loo["rms_mm"]], abs=6e-4)
         assert loo["rms_mm"] < 1.0
     # opencv-andreff's wrong answer (0.4 m off) is plain from its LOO figures alone
-    assert float(rows["opencv-andreff"][8]) > 50
+    assert float(rows["opencv-andreff"][10]) > 50
     assert "error" in results["opencv-li"] and "leave_one_frame_out" not in results["opencv-li"]
     assert "loo px, loo mm: leave-one-frame-out prediction RMS" in stdout
 
