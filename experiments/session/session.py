@@ -56,8 +56,9 @@ class SessionCell(Protocol):
 
 class LiveEstimate:
     """Detects each new frame of a recording and runs the EKF over every frame so far, with
-    the dataset's depth and robot noise, so the running estimate is what `hec calibrate`
-    would give for the frames recorded up to now."""
+    the dataset's depth and robot noise as declared (learning them from a few frames at every frame
+    would cost seconds and say little; `hec calibrate` and `hec run`'s final calibration learn them
+    from all frames), so the running estimate shows how the views add up as they come."""
 
     def __init__(self, root: Path, method: str = DEFAULT_METHOD) -> None:
         dataset = load_dataset(root)
@@ -83,7 +84,7 @@ class LiveEstimate:
         Raises CalibrationInputError (too few usable frames) and the method's own errors."""
         observations = self.observations if observations is None else observations
         problem = build_problem(observations, self.board, self.intrinsics, self.robot_noise)
-        return run_method(self.method, problem, MethodOptions(), observations)
+        return run_method(self.method, problem, MethodOptions(learn_noise=False), observations)
 
     def history(self) -> list[tuple[int, Calibration]]:
         """The estimate after each frame so far, as (frames used, result), from the first
