@@ -132,14 +132,17 @@ def test_config_errors_name_the_file_and_key(tmp_path: Path, text: str, key: str
     assert str(path) in str(info.value) and key in str(info.value)
 
 
-def test_depth_bias_shows_in_the_error(tmp_path: Path) -> None:
+def test_depth_bias_reaches_the_trial_and_learned_noise_contains_it(tmp_path: Path) -> None:
     path = tmp_path / "bias.toml"
     path.write_text('trials = 1\nmethods = ["ekf"]\n[grid]\ndepth_bias_scale = [1.0, 1.02]\n')
     run_sweep(load_config(path), tmp_path / "out", workers=1, progress=False)
     unbiased, biased = load_rows(tmp_path / "out")
     assert unbiased["depth_bias_scale"] == 1.0 and biased["depth_bias_scale"] == 1.02
-    assert biased["error_translation_mm"] > 3 * unbiased["error_translation_mm"]
-    assert biased["nees"] > 100.0
+    # The bias reaches the trial (its error changes), and the depth noise learned from the data keeps
+    # it cheap: with the declared noise a 2 % bias cost 3x the error and a NEES above 100.
+    assert biased["error_translation_mm"] != unbiased["error_translation_mm"]
+    assert biased["error_translation_mm"] < 3 * unbiased["error_translation_mm"]
+    assert biased["nees"] < 100.0
 
 
 def test_render_trial_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
