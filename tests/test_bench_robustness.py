@@ -25,6 +25,7 @@ def test_two_cases_give_every_row_and_the_acceptance_lines() -> None:
         assert acceptance[1].startswith("acceptance: default median rotation <= 0.8x best OpenCV: ")
         assert acceptance[2].startswith("acceptance: mean NEES in [4, 9]: ")
         assert all(("PASS (" in line) != ("FAIL (" in line) for line in acceptance)
-        assert any(line.startswith("Cramer-Rao bound, median") for line in lines)
+        assert any(line.startswith("Cramer-Rao bound at the truth: median RSS 1-sigma ") for line in lines)
+        assert 0.0 < summary["crb_error_median_mm"] < summary["crb_median_mm"]
     # The arm's noise, 3x what is declared, is noticed.
     assert summaries["measurements: arm noise 3x"]["methods"][DEFAULT_METHOD]["warned"] > 0
