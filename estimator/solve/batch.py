@@ -148,6 +148,25 @@ def gauss_newton(
     return x, iterations
 
 
+def weighted_jacobian(
+    objective: BatchObjective, params: np.ndarray, robust: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals at params and the Jacobian whose rows carry the square root of their Huber
+    weights (robust) or are as they are: J^T J is then the information of the optimum."""
+    r = objective.residuals(params)
+    J = objective.jacobian(params)
+    return r, J * np.sqrt(huber_weights(r))[:, None] if robust else J
+
+
+def state_covariance(objective: BatchObjective, params: np.ndarray, robust: bool) -> np.ndarray:
+    """(n, n) covariance of the state's local perturbation at params: the state block of
+    inv(J^T W J), carried from the parameters to the perturbation at the estimate."""
+    _, J = weighted_jacobian(objective, params, robust)
+    to_local = objective.start.plus_jacobian(params[: objective.n])
+    cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
+    return 0.5 * (cov + cov.T)
+
+
 def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     """The batch optimum over all frames (see the module doc)."""
     start_time = time.perf_counter()
@@ -157,18 +176,13 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     with threadpool_limits(limits=1, user_api="blas"):
         params, iterations = gauss_newton(objective, np.zeros(objective.size), options.robust)
         state = start.plus(params[: objective.n])
-        J = objective.jacobian(params)
-        if options.robust:
-            J = J * np.sqrt(huber_weights(objective.residuals(params)))[:, None]
-        # Covariance of the parameters, then of the local perturbation at the estimate.
-        to_local = start.plus_jacobian(params[: objective.n])
-        cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
+        cov = state_covariance(objective, params, options.robust)
     rejected = outliers(problem, objective.frame_residuals(params)) if options.robust else set()
     return calibration_from_state(
         "batch",
         problem,
         state,
-        0.5 * (cov + cov.T),
+        cov,
         rejected,
         {
             "iterations": iterations,

@@ -29,7 +29,14 @@ from scipy.stats import norm
 from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import pose_minus
-from estimator.solve.batch import HUBER_SCALE, BatchObjective, gauss_newton, huber_weights, outliers
+from estimator.solve.batch import (
+    HUBER_SCALE,
+    BatchObjective,
+    gauss_newton,
+    outliers,
+    state_covariance,
+    weighted_jacobian,
+)
 from estimator.solve.calibration import MethodOptions, Prior
 from estimator.solve.filters import initial_covariance
 from estimator.solve.initialise import initial_state
@@ -229,10 +236,7 @@ def _vce(
         objective = _objective(scaled, start, P0, options, self_calibrate)
         x0 = np.zeros(objective.size) if params is None else params
         params, _ = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
-        r = objective.residuals(params)
-        J = objective.jacobian(params)
-        if options.robust:
-            J = J * np.sqrt(huber_weights(r))[:, None]
+        r, J = weighted_jacobian(objective, params, options.robust)
         hat = np.einsum("ij,ji->i", J, np.linalg.solve(J.T @ J, J.T))
         groups = _row_groups(objective, scaled, self_calibrate)
         squares = np.minimum(r**2, HUBER_SCALE**2) / _CLIPPED_SQUARE if options.robust else r**2
@@ -299,10 +303,7 @@ def _nuisance_uncertainty(
     adjusted problem with theta fixed adds it)."""
     scaled = scaled_problem(problem, final.levels)
     objective = _objective(scaled, start, P0, options, True)
-    r = objective.residuals(final.params)
-    J = objective.jacobian(final.params)
-    if options.robust:
-        J = J * np.sqrt(huber_weights(r))[:, None]
+    _, J = weighted_jacobian(objective, final.params, options.robust)
     N = J.T @ J
     p = len(NUISANCE)
     free = np.linalg.inv(N)
@@ -322,10 +323,9 @@ def _prior_distance(
     """Squared Mahalanobis distance of the user's prior from the data-only batch optimum."""
     objective = BatchObjective(scaled, start, P0, None)
     x, _ = gauss_newton(objective, params, options.robust)
-    J = objective.jacobian(x)
-    to_local = start.plus_jacobian(x[: objective.n])
-    cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
-    return prior_conflict(start.plus(x[: objective.n]), cov, options.prior)
+    return prior_conflict(
+        start.plus(x[: objective.n]), state_covariance(objective, x, options.robust), options.prior
+    )
 
 
 def _sigma(levels: NoiseLevels, name: str) -> float:
