@@ -102,6 +102,15 @@ def _check_usable(
         )
 
 
+def camera_problem(
+    name: str, problem: CalibrationProblem, learned: LearnedNoise | None
+) -> CalibrationProblem:
+    """The problem with the camera and board a method solved with: the self-calibrated ones when
+    the learning pass needed them, except for seed-ekf (it measures points from the observations
+    with the declared camera)."""
+    return problem if learned is None or name == "seed-ekf" else learned.adjusted(problem)
+
+
 def learned_setup(
     name: str, problem: CalibrationProblem, options: MethodOptions, learned: LearnedNoise
 ) -> tuple[CalibrationProblem, CalibrationProblem, MethodOptions]:
@@ -110,7 +119,7 @@ def learned_setup(
     measures points from the observations with the declared camera), that problem at the learned
     levels without the pass's outliers, and the options (the pass over all frames found the
     outliers, so only batch keeps its robust loss)."""
-    adjusted = learned.adjusted(problem) if name != "seed-ekf" else problem
+    adjusted = camera_problem(name, problem, learned)
     solved = scaled_problem(adjusted, learned.learned, learned.outliers)
     return adjusted, solved, replace(options, robust=name == "batch")
 
@@ -125,7 +134,7 @@ def run_method(
     """solve, and the result carries diagnostics['observability'] and the warnings it raises."""
     result = solve(name, problem, options, observations, learned)
     noise = result.diagnostics.get("noise")
-    seen = problem if noise is None or name == "seed-ekf" else noise.adjusted(problem)
+    seen = camera_problem(name, problem, noise)
     report = observability(seen, _map_state(problem, result))
     result.diagnostics["observability"] = report
     result.warnings.extend(w for w in report.warnings if w not in result.warnings)
