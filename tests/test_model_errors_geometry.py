@@ -29,7 +29,7 @@ from sim.simulate import scenario_waypoints
 REALISTIC = models_dir() / "scenarios" / "realistic.toml"
 SEED = 7
 # Views of the default trajectory rolled about the optical axis (estimator.geometry.waypoints'
-# ROTATION_RICH_VIEWS_DEG 9-16). With roll 0 the marker edges run along the pixel rows and
+# ROTATION_RICH_VIEWS 9-16). With roll 0 the marker edges run along the pixel rows and
 # columns and the renderer places them with a sub-pixel-phase error of up to ~0.1 px (seen on
 # the ideal cell too); rolled edges sweep every phase and are located to ~0.01 px.
 ROLLED_VIEWS = (9, 11, 12, 13, 14, 15, 16)

@@ -29,27 +29,33 @@ from estimator.geometry.transforms import (
 POSE_COLUMNS = ("x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
 JOINT_COLUMNS = tuple(f"q{i}_rad" for i in range(1, 7))
 
-# (tilt, azimuth of the tilt axis in the board plane, roll about the optical axis), degrees.
-# Tilts about the board's x axis (azimuth 0/180) and y axis (90/270) and in between,
-# plus rolls: rotations about three non-parallel axes, 15-35 degrees each.
-ROTATION_RICH_VIEWS_DEG = (
-    (0, 0, 0),
-    (20, 0, 0),
-    (20, 90, 0),
-    (20, 180, 0),
-    (20, 270, 0),
-    (32, 45, 0),
-    (32, 135, 0),
-    (32, 225, 0),
-    (32, 315, 0),
-    (0, 0, 20),
-    (0, 0, -20),
-    (25, 0, 15),
-    (25, 180, -15),
-    (25, 90, -15),
-    (25, 270, 15),
-    (15, 60, 10),
-    (15, 240, -10),
+# (tilt, azimuth of the tilt axis in the board plane, roll about the optical axis) in degrees,
+# and the distance as a fraction of the scenario's. Tilts about the board's x axis (azimuth
+# 0/180) and y axis (90/270) and in between, plus rolls: rotations about three non-parallel axes,
+# 15-35 degrees each. The views alternate between NEAR and FAR: views all at one distance from the
+# board centre cannot tell a board printed 1 % large from a depth reading 1 % long (either moves
+# the camera along its optical axis in every view alike; the flange poses are the same), two
+# distances can (measured in the robustness issue's note: batch 0.36 mm where one distance gave
+# 2-3 mm on both, OpenCV's Park 5 mm on the print scale).
+NEAR, FAR = 0.9, 1.25
+ROTATION_RICH_VIEWS = (
+    (0, 0, 0, NEAR),
+    (20, 0, 0, FAR),
+    (20, 90, 0, NEAR),
+    (20, 180, 0, FAR),
+    (20, 270, 0, NEAR),
+    (32, 45, 0, FAR),
+    (32, 135, 0, NEAR),
+    (32, 225, 0, FAR),
+    (32, 315, 0, NEAR),
+    (0, 0, 20, NEAR),
+    (0, 0, -20, FAR),
+    (25, 0, 15, FAR),
+    (25, 180, -15, NEAR),
+    (25, 90, -15, FAR),
+    (25, 270, 15, NEAR),
+    (15, 60, 10, FAR),
+    (15, 240, -10, NEAR),
 )
 # The paper's set: one orientation, the camera moved 30-40 mm along each base axis.
 PAPER_OFFSETS_M = tuple(
@@ -110,15 +116,16 @@ def look_at_board(tilt_deg: float, azimuth_deg: float, roll_deg: float, distance
 def rotation_rich_waypoints(
     T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float
 ) -> list[Waypoint]:
-    """The default trajectory: 17 views of the board centre with tilts and rolls."""
+    """The default trajectory: 17 views of the board centre with tilts and rolls, at NEAR and FAR
+    times distance_m (ROTATION_RICH_VIEWS)."""
     T_cam_flange = invert(T_flange_cam)
     return [
         Waypoint(
             i,
-            f"tilt {tilt} az {az} roll {roll}",
-            T_base_flange=T_base_board @ look_at_board(tilt, az, roll, distance_m) @ T_cam_flange,
+            f"tilt {tilt} az {az} roll {roll} at {factor * distance_m:.3f} m",
+            T_base_flange=T_base_board @ look_at_board(tilt, az, roll, factor * distance_m) @ T_cam_flange,
         )
-        for i, (tilt, az, roll) in enumerate(ROTATION_RICH_VIEWS_DEG)
+        for i, (tilt, az, roll, factor) in enumerate(ROTATION_RICH_VIEWS)
     ]
 
 

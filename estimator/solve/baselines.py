@@ -13,9 +13,10 @@ OpenCV then solves for the mount from these poses and the reported flange poses 
 OpenCV gives no uncertainty (covariance None) and uses only the pixels (no depth, no robot noise model).
 
 andreff and li solve for the nine rotation entries and the translation together; only the translations fix
-the rotation's scale. When every view looks at one point from one distance (the default trajectory orbits
-the board centre), every motion is a rotation about that point and the scale is lost: OpenCV then fails
-(CalibrationInputError here) or, less often, returns a translation tens of centimetres off.
+the rotation's scale. When every view looks at one point from one distance (an orbit of the board centre;
+the default trajectory alternates two distances for this reason among others), every motion is a rotation
+about that point and the scale is lost: OpenCV then fails (CalibrationInputError here) or, less often,
+returns a translation tens of centimetres off.
 """
 
 from __future__ import annotations

@@ -44,9 +44,9 @@ VERSION = 1
 DEFAULT_BASELINE = Path(__file__).with_name("baseline.json")
 WAYPOINT_FILE = "waypoints.csv"
 # A new baseline (`--update` on a missing file): ten of
-# estimator.geometry.waypoints.ROTATION_RICH_VIEWS_DEG, by index: tilts about the board's x and y
+# estimator.geometry.waypoints.ROTATION_RICH_VIEWS, by index: tilts about the board's x and y
 # axes and the diagonals, and rolls both ways, so every axis of the mount is observed. The baseline
-# file stores the angles themselves.
+# file stores the angles themselves (its views are all at the scenario's distance).
 DEFAULT_VIEW_INDICES = (1, 3, 5, 7, 9, 10, 11, 12, 13, 14)
 DEFAULT_SEED = 7  # tests/conftest.py TEST_SEED: the detector's floors were tuned on seed 0
 
@@ -259,7 +259,7 @@ def load_baseline(path: Path) -> Baseline:
 def new_baseline_document() -> dict:
     """The document of a new baseline: the default scenario, the DEFAULT_VIEW_INDICES views, DEFAULT_SEED,
     ekf and DEFAULT_THRESHOLDS, with nothing recorded yet."""
-    from estimator.geometry.waypoints import ROTATION_RICH_VIEWS_DEG
+    from estimator.geometry.waypoints import ROTATION_RICH_VIEWS
     from sim.scenario import Scenario
 
     settings = Scenario().to_dict()
@@ -275,7 +275,7 @@ def new_baseline_document() -> dict:
         ),
         "scenario": {
             "seed": DEFAULT_SEED,
-            "views_deg": [list(ROTATION_RICH_VIEWS_DEG[i]) for i in DEFAULT_VIEW_INDICES],
+            "views_deg": [list(ROTATION_RICH_VIEWS[i][:3]) for i in DEFAULT_VIEW_INDICES],
             "views_convention": VIEWS_CONVENTION,
             "settings": settings,
         },
