@@ -9,6 +9,8 @@ Patterns looked for (each a warning with the figures that support it):
   or board file);
 - depth: depth residuals that grow with distance or are offset (a depth scale or offset bias),
   or that are simply larger than the depth noise model;
+- self-calibration that could not separate the print scale from the depth scale (views at one
+  distance);
 - the prior: the user's prior and the data disagree (Mahalanobis distance);
 - rejections: more than MAX_REJECTED_FRACTION of the observations left out.
 """
@@ -32,6 +34,23 @@ MAX_REJECTED_FRACTION = 0.10
 PRIOR_CONFLICT_PROBABILITY = 1e-3
 # A residual pattern is reported when it explains at least this share of the residual's variance.
 PATTERN_SHARE = 0.3
+# The print scale and the depth scale are "not told apart" above this correlation of their estimates.
+SCALE_CORRELATION = 0.9
+# A self-calibrated correction is reported when it is more than SIGNIFICANT sigmas from the declared
+# model and larger than its NOTEWORTHY size (below that it changes the mount by well under 0.1 mm).
+SIGNIFICANT = 3.0
+NOTEWORTHY = {
+    "fx_px": 1.0,
+    "fy_px": 1.0,
+    "cx_px": 1.0,
+    "cy_px": 1.0,
+    "k1": 0.01,
+    "k2": 0.01,
+    "board_scale_x": 0.001,
+    "board_scale_y": 0.001,
+    "depth_scale": 0.001,
+    "depth_offset_m": 0.0005,
+}
 
 
 @dataclass
@@ -55,7 +74,10 @@ def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int)
     check = FitCheck(dict(learned.ratios, **{"all measurements": learned.chi2_dof}))
     declared, learnt = learned.declared.robot, learned.learned.robot
     ratio = check.chi2_dof
-    if max(ratio.get("robot_translation", 0), ratio.get("robot_rotation", 0)) > BAD_FIT:
+    # The groups' fit with the self-calibrated camera, board and depth, when they were: a wrong
+    # print scale also strains the flange poses and the depths under the declared model.
+    after = learned.ratios_after or ratio
+    if max(after.get("robot_translation", 0), after.get("robot_rotation", 0)) > BAD_FIT:
         check.warnings.append(
             f"the arm is less exact than declared: its pose noise, learned from the data, is "
             f"{1e3 * learnt.translation_sigma_m:.2f} mm / {np.degrees(learnt.rotation_sigma_rad):.3f} deg, "
@@ -63,10 +85,15 @@ def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int)
             f"{np.degrees(declared.rotation_sigma_rad):.3f} deg (a UR's absolute accuracy with nominal "
             "kinematics is millimetres, its repeatability 0.1 mm): the learned level is used"
         )
-    if ratio.get("pixels", 0) > BAD_FIT:
-        check.warnings += _pixel_patterns(problem, learned, check.patterns)
-    if ratio.get("depth", 0) > BAD_FIT:
-        check.warnings += _depth_pattern(problem, learned, check.patterns)
+    if learned.theta is None:
+        if ratio.get("pixels", 0) > BAD_FIT:
+            check.warnings += _pixel_patterns(problem, learned, check.patterns)
+        if ratio.get("depth", 0) > BAD_FIT:
+            check.warnings += _depth_pattern(problem, learned, check.patterns)
+    else:
+        check.warnings += _self_calibration(learned, check.patterns)
+        check.warnings += _scale_ambiguity(learned, check.patterns)
+        check.warnings += _noise_left(after)
     if prior_distance is not None:
         check.patterns["prior_mahalanobis"] = float(np.sqrt(prior_distance))
         if chi2.sf(prior_distance, 6) < PRIOR_CONFLICT_PROBABILITY:
@@ -142,16 +169,6 @@ def _pixel_patterns(problem: CalibrationProblem, learned: LearnedNoise, patterns
         )
     if not causes:
         causes.append("no pattern stands out: detection noise above the detector's estimate, or blur")
-    if learned.theta is not None:
-        t = dict(zip(NUISANCE, learned.theta, strict=True))
-        after = np.sqrt(learned.fit_after["pixels"]) * learned.learned.pixel_scale
-        causes.append(
-            "so the camera and the board were calibrated with the mount (fx "
-            f"{t['fx_px']:+.2f} px, fy {t['fy_px']:+.2f} px, cx {t['cx_px']:+.2f} px, "
-            f"cy {t['cy_px']:+.2f} px, "
-            f"k1 {t['k1']:+.4f}, k2 {t['k2']:+.4f}, board x {100 * t['board_scale_x']:+.2f} %, y "
-            f"{100 * t['board_scale_y']:+.2f} %): the corners now fit {after:.1f}x their noise"
-        )
     return [words[0] + "; " + "; ".join(causes) + "; the learned pixel noise is used"]
 
 
@@ -183,4 +200,94 @@ def _depth_pattern(problem: CalibrationProblem, learned: LearnedNoise, patterns:
     return [
         f"depth and pixels disagree: the depth fits {level:.1f}x worse than its noise; {cause}; the "
         "depth is kept with its learned (larger) noise, so pixels dominate"
+    ]
+
+
+def _noise_left(after: dict[str, float]) -> list[str]:
+    """What still fits worse than its noise once the camera, board and depth are self-calibrated:
+    noise above its model, which the learned levels carry."""
+    words = []
+    if after.get("pixels", 0) > BAD_FIT:
+        words.append(
+            f"even with the camera and board calibrated, the corners fit {np.sqrt(after['pixels']):.1f}x "
+            "worse than their noise: detection noise above the detector's estimate, or blur; the "
+            "learned pixel noise is used"
+        )
+    if after.get("depth", 0) > BAD_FIT:
+        words.append(
+            f"even with its scale and offset calibrated, the depth fits {np.sqrt(after['depth']):.1f}x "
+            "worse than its noise: depth noisier than its model (spatially correlated, flying "
+            "pixels?); the learned depth noise is used"
+        )
+    return words
+
+
+def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
+    """What the self-calibration found: each correction more than SIGNIFICANT sigmas and
+    NOTEWORTHY in size from the declared model, with its likely cause and remedy."""
+    t = dict(zip(NUISANCE, learned.theta, strict=True))
+    sigma = dict(zip(NUISANCE, learned.theta_sigma, strict=True))
+    patterns.update({f"self_calibration_{name}": float(v) for name, v in t.items()})
+
+    def found(*names: str) -> bool:
+        return any(abs(t[n]) > max(SIGNIFICANT * sigma[n], NOTEWORTHY[n]) for n in names)
+
+    findings = []
+    if found("board_scale_x", "board_scale_y"):
+        findings.append(
+            f"the board is printed {100 * np.expm1(t['board_scale_x']):+.2f} % (x) and "
+            f"{100 * np.expm1(t['board_scale_y']):+.2f} % (y) off its definition (+-"
+            f"{100 * sigma['board_scale_x']:.2f} %): measure the print (its 100 mm bar) and correct the "
+            "board file"
+        )
+    if found("depth_scale", "depth_offset_m"):
+        gain = np.exp(t["depth_scale"])
+        findings.append(
+            f"the depth reads true x {gain:.4f} {1e3 * gain * t['depth_offset_m']:+.2f} mm (+-"
+            f"{100 * sigma['depth_scale']:.2f} %, +-{1e3 * sigma['depth_offset_m']:.2f} mm): run the "
+            "camera's on-chip calibration or Tare"
+        )
+    if found("fx_px", "fy_px", "cx_px", "cy_px"):
+        findings.append(
+            f"the intrinsics are off by fx {t['fx_px']:+.2f}, fy {t['fy_px']:+.2f}, cx {t['cx_px']:+.2f}, "
+            f"cy {t['cy_px']:+.2f} px: calibrate the camera's intrinsics"
+        )
+    if found("k1", "k2"):
+        findings.append(
+            f"the lens distortion differs from the dataset's by k1 {t['k1']:+.4f}, k2 {t['k2']:+.4f}: "
+            "calibrate the camera's intrinsics with distortion"
+        )
+    if not findings:
+        return []
+    misfit = ", ".join(
+        f"{name} {np.sqrt(learned.ratios[name]):.1f}x"
+        for name in ("pixels", "depth")
+        if name in learned.ratios
+    )
+    return [
+        f"the declared model did not fit (the {misfit} their noise), so the camera, board and depth "
+        "were calibrated with the mount (self-calibration; the mount's covariance includes their "
+        "uncertainty): " + "; ".join(findings)
+    ]
+
+
+def _scale_ambiguity(learned: LearnedNoise, patterns: dict) -> list[str]:
+    """A warning when the views could not tell the board's print scale from the depth's scale
+    (their estimates correlated beyond SCALE_CORRELATION): the split between the two rests on
+    their priors, and the mount's covariance carries it."""
+    names = list(NUISANCE)
+    C = learned.theta_covariance
+    board = np.zeros(len(names))
+    board[[names.index("board_scale_x"), names.index("board_scale_y")]] = 0.5
+    depth = np.zeros(len(names))
+    depth[names.index("depth_scale")] = 1.0
+    correlation = float(board @ C @ depth / np.sqrt((board @ C @ board) * (depth @ C @ depth)))
+    patterns["print_depth_scale_correlation"] = correlation
+    if abs(correlation) < SCALE_CORRELATION:
+        return []
+    return [
+        f"these views cannot tell the board's print scale from the depth's scale (their estimates "
+        f"are {abs(correlation):.0%} correlated): both were estimated with wide priors, and the "
+        "covariance of the mount includes what they leave open; add views nearer to and farther from "
+        "the board (the default trajectory alternates 0.9 and 1.25 times its distance)"
     ]

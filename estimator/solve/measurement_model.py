@@ -5,7 +5,7 @@ A board corner c (board frame) seen in frame i:
     p_base = T_base_board @ c                 (board mode), or a landmark (landmark mode)
     p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
     pixel  = project(p_cam)                   (K and OpenCV distortion)
-    depth  = depth_scale * p_cam.z
+    depth  = exp(s) (depth_scale * p_cam.z + o)   (s, o: problem.depth_bias, 0 unless self-calibrated)
 
 State perturbations follow estimator.geometry.lie: (dt, dtheta) for T_flange_cam and
 T_base_board, (dx, dy, dz) for a landmark, d(scale) for the depth scale, in this
@@ -80,9 +80,9 @@ class FramePrediction:
     """Whitened residual W (measured - predicted), (m,), and the Jacobians of the whitened
     prediction W h with respect to the state perturbation (m, dim) and the flange pose
     perturbation delta (m, 6). pixels: (P, 2) predicted corners; depth_m: (P,) predicted
-    depth; points_cam: (P, 3), all in marker order. J_camera (m, 8), with camera_jacobian: with
-    respect to fx, fy, cx, cy, k1, k2 (added to the distortion) and the board's scale along its x
-    and y (estimator.solve.self_calibration.NUISANCE)."""
+    depth; points_cam: (P, 3), all in marker order. J_camera (m, 10), with camera_jacobian: with
+    respect to fx, fy, cx, cy, k1, k2 (added to the distortion), the board's scale along its x
+    and y, and the depth bias's log scale and offset (estimator.solve.self_calibration.NUISANCE)."""
 
     residual: np.ndarray
     J_state: np.ndarray
@@ -138,7 +138,8 @@ def predict_frame(
     p_cam = (p_flange - t_X) @ R_X
     pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
     scale = 1.0 if state.depth_scale is None else state.depth_scale
-    depth = scale * p_cam[:, 2]
+    gain = float(np.exp(problem.depth_bias[0]))
+    depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1])
 
     residual_parts = []
     for k, m in enumerate(markers):
@@ -157,7 +158,7 @@ def predict_frame(
     d_cam_d_X = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
     d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
     # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
-    d_meas_d_cam = np.concatenate([d_pix, scale * np.broadcast_to([0.0, 0.0, 1.0], (P, 1, 3))], axis=1)
+    d_meas_d_cam = np.concatenate([d_pix, gain * scale * np.broadcast_to([0.0, 0.0, 1.0], (P, 1, 3))], axis=1)
 
     n = state.dim
     J_state_points = np.zeros((P, 3, n))
@@ -172,7 +173,7 @@ def predict_frame(
         for j, row in enumerate(rows):
             J_state_points[j, :, 6 + 3 * row : 9 + 3 * row] = d_meas_d_base[j]
     if state.depth_scale is not None:
-        J_state_points[:, 2, -1] = p_cam[:, 2]
+        J_state_points[:, 2, -1] = gain * p_cam[:, 2]
     J_flange_points = d_meas_d_cam @ d_cam_d_F
 
     J_state_rows, J_flange_rows = [], []
@@ -187,7 +188,7 @@ def predict_frame(
         J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
     J_camera = None
     if camera_jacobian:
-        J_camera = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base)
+        J_camera = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base, depth)
     return FramePrediction(
         residual, np.concatenate(J_state_rows), np.concatenate(J_flange_rows), pixels, depth, p_cam, J_camera
     )
@@ -200,11 +201,13 @@ def _camera_jacobian(
     xy: np.ndarray,
     xy_d: np.ndarray,
     d_meas_d_base: np.ndarray,
+    depth: np.ndarray,
 ) -> np.ndarray:
-    """(m, 8) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y)."""
+    """(m, 10) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
+    depth log scale, depth offset); depth (P,): the predicted depths."""
     k = problem.intrinsics
     P = len(xy)
-    J = np.zeros((P, 3, 8))  # per point: (u, v, depth) rows
+    J = np.zeros((P, 3, 10))  # per point: (u, v, depth) rows
     J[:, 0, 0], J[:, 1, 1] = xy_d[:, 0], xy_d[:, 1]
     J[:, 0, 2] = J[:, 1, 3] = 1.0
     r2 = np.sum(xy * xy, axis=1)
@@ -217,9 +220,11 @@ def _camera_jacobian(
         for axis in (0, 1):
             d_base = R_B[:, axis][None, :] * corners_board[:, axis : axis + 1]  # (P, 3)
             J[:, :, 6 + axis] = np.einsum("pij,pj->pi", d_meas_d_base, d_base)
+    J[:, 2, 8] = depth
+    J[:, 2, 9] = np.exp(problem.depth_bias[0])
     rows = []
     for i, m in enumerate(markers):
         sl = slice(4 * i, 4 * i + 4)
-        block = [J[sl, :2].reshape(8, 8)] + ([J[sl, 2]] if m.depth_m is not None else [])
+        block = [J[sl, :2].reshape(8, 10)] + ([J[sl, 2]] if m.depth_m is not None else [])
         rows.append(m.whitening @ np.concatenate(block))
     return np.concatenate(rows)

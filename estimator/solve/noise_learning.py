@@ -49,10 +49,11 @@ PRIOR_DOF = 3.0
 MAX_ITERATIONS = 30
 # Each pass's optimum to this relative cost change (the levels move by far more between passes).
 VCE_COST_TOLERANCE = 1e-7
-# The declared image model is replaced by self-calibration when the corners fit worse than this
-# many times their noise (chi-square per degree of freedom above its square; white corner noise 3x
-# the detector's estimate triggered it in half the trials at 3).
-PIXEL_MISFIT_SCALE = 5.0
+# The declared camera, board and depth are replaced by self-calibration when the corners or the
+# depths fit worse than this many times their noise (the learned level: a chi-square per degree
+# of freedom above 2.25, estimator.solve.fit_check.BAD_FIT). White noise above the declared level
+# triggers it too; the priors then keep theta near zero, at the cost of the covariance it adds.
+MISFIT_SCALE = 1.5
 # Learning stops when no level changes by more than this fraction in an iteration.
 LEVEL_TOLERANCE = 0.003
 # Where the declared robot pose noise is zero (exact poses), learning starts from this floor.
@@ -90,11 +91,11 @@ class LearnedNoise:
     the robust optimum down-weighted. residuals: per frame the whitened measurement residual at
     the optimum under the learned levels. prior_distance: with a user prior, the squared
     Mahalanobis distance between it and the estimate from the data alone (fit_check).
-    first_state: the optimum under the declared image model. With self-calibration (the corners fit
-    worse than PIXEL_MISFIT_SCALE times their noise under the declared camera and board): theta,
-    theta_sigma (estimator.solve.self_calibration.NUISANCE order), consider_covariance (6, 6) that
-    T_flange_cam's covariance gains from theta's uncertainty, and fit_after: each group's
-    chi-square per degree of freedom at the learned levels with the adjusted model."""
+    first_state: the optimum under the declared image model. With self-calibration (the corners or
+    the depths fit worse than MISFIT_SCALE times their noise under the declared model): theta,
+    theta_covariance (estimator.solve.self_calibration.NUISANCE order), consider_covariance (6, 6) that
+    T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
+    ratios and chi2_dof, with the adjusted model."""
 
     declared: NoiseLevels
     learned: NoiseLevels
@@ -109,9 +110,15 @@ class LearnedNoise:
     time_s: float = 0.0
     first_state: HandEyeState | None = None
     theta: np.ndarray | None = None
-    theta_sigma: np.ndarray | None = None
+    theta_covariance: np.ndarray | None = None
     consider_covariance: np.ndarray | None = None
-    fit_after: dict[str, float] | None = None
+    ratios_after: dict[str, float] | None = None
+    chi2_dof_after: float | None = None
+
+    @property
+    def theta_sigma(self) -> np.ndarray | None:
+        """theta's 1-sigmas (NUISANCE order), None without self-calibration."""
+        return None if self.theta_covariance is None else np.sqrt(np.diag(self.theta_covariance))
 
     def adjusted(self, problem: CalibrationProblem) -> CalibrationProblem:
         """The problem with the self-calibrated camera and board (unchanged without)."""
@@ -262,12 +269,14 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, False)
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
     first_state = start.plus(first.params[: start.dim])
-    final, theta, theta_sigma, consider = first, None, None, None
-    if first.levels.pixel_scale > PIXEL_MISFIT_SCALE:
+    final, theta, theta_covariance, consider = first, None, None, None
+    ratios_after, chi2_dof_after = None, None
+    if max(first.levels.pixel_scale, first.levels.depth_scale) > MISFIT_SCALE:
         x0 = np.concatenate([first.params, np.zeros(len(NUISANCE))])
         final = _vce(problem, options, start, P0, first.levels, x0, True)
         theta = final.params[-len(NUISANCE) :]
-        theta_sigma, consider = _nuisance_uncertainty(problem, final, start, P0, options)
+        theta_covariance, consider = _nuisance_uncertainty(problem, final, start, P0, options)
+        ratios_after, chi2_dof_after = _declared_fit(final.levels, declared, robot, final.factors)
     adjusted = problem if theta is None else adjusted_problem(problem, theta)
     scaled = scaled_problem(adjusted, final.levels)
     objective = BatchObjective(scaled, start, P0, options.prior)
@@ -289,16 +298,17 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         prior_distance,
         first_state=first_state,
         theta=theta,
-        theta_sigma=theta_sigma,
+        theta_covariance=theta_covariance,
         consider_covariance=consider,
-        fit_after={name: s / red for name, (s, red) in final.factors.items()} if theta is not None else None,
+        ratios_after=ratios_after,
+        chi2_dof_after=chi2_dof_after,
     )
 
 
 def _nuisance_uncertainty(
     problem: CalibrationProblem, final: _Pass, start: HandEyeState, P0: np.ndarray, options: MethodOptions
 ) -> tuple[np.ndarray, np.ndarray]:
-    """theta's 1-sigma (NUISANCE,) and the (6, 6) covariance T_flange_cam gains from theta being
+    """theta's covariance (NUISANCE, NUISANCE) and the (6, 6) covariance T_flange_cam gains from theta being
     estimated (its covariance with theta free minus with theta fixed: a method that solves the
     adjusted problem with theta fixed adds it)."""
     scaled = scaled_problem(problem, final.levels)
@@ -310,7 +320,7 @@ def _nuisance_uncertainty(
     fixed = np.linalg.inv(N[:-p, :-p])
     to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
     extra = to_local @ (free[:6, :6] - fixed[:6, :6]) @ to_local.T
-    return np.sqrt(np.diag(free)[-p:]), 0.5 * (extra + extra.T)
+    return free[-p:, -p:], 0.5 * (extra + extra.T)
 
 
 def _prior_distance(

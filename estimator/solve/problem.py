@@ -107,7 +107,9 @@ class FrameMeasurements:
 class CalibrationProblem:
     """Everything an estimator needs. marker_ids: the observed board markers, sorted; the
     landmark of corner c of marker marker_ids[k] has index 4 * k + c. rejected: one line
-    per frame or marker left out, with the reason."""
+    per frame or marker left out, with the reason. depth_bias: (log scale s, offset o metres) of
+    the measured depth, measured = exp(s) (z + o) for a true depth z (self-calibration sets it;
+    none by default)."""
 
     intrinsics: CameraIntrinsics
     board: BoardDefinition
@@ -115,6 +117,7 @@ class CalibrationProblem:
     robot_noise: RobotPoseNoise
     marker_ids: list[int]
     rejected: list[str] = field(default_factory=list)
+    depth_bias: tuple[float, float] = (0.0, 0.0)
 
     @property
     def observation_count(self) -> int:

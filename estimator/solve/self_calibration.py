@@ -1,16 +1,21 @@
-"""Self-calibration: the camera's intrinsics, its radial distortion and the board's print scale
-estimated with the mount, for when the image model the dataset declares does not fit.
+"""Self-calibration: the camera's intrinsics, its radial distortion, the board's print scale and
+the depth's scale and offset estimated with the mount, for when the model the dataset declares
+does not fit.
 
 The nuisance parameters theta (NUISANCE) are corrections to what the problem declares:
 focal lengths and principal point (pixels), the radial distortion k1, k2 (added to the declared
-coefficients) and the printed board's scale along its x and y (log scales, so about the
-fractions: corners scaled by exp(theta) about the board frame's origin). Each has a weak
-Gaussian prior (PRIOR_SIGMA: factory intrinsics are a few tenths of a percent and a few pixels
-off, a print a few tenths of a percent), so theta stays
-determined when the views do not separate it from the mount; the views of a hand-eye calibration
-(tilted, rolled, across the image) determine it well. The batch objective gains theta as
-parameters (their Jacobian analytic, from predict_frame) and its prior rows; the noise learning runs on
-it when the declared image model fits badly, and every method then solves the adjusted problem.
+coefficients), the printed board's scale along its x and y (log scales, so about the
+fractions: corners scaled by exp(theta) about the board frame's origin), and the depth bias
+(CalibrationProblem.depth_bias: measured depth = exp(depth_scale) (z + depth_offset_m), z the
+true depth). Each has a Gaussian prior (PRIOR_SIGMA: factory intrinsics are a few tenths of a
+percent and a few pixels off, a print a few tenths of a percent, a stereo camera's depth a
+percent or two and a few millimetres), so theta stays determined when the views do not separate
+it from the mount. From views at one distance a print scale and a depth scale look alike (either
+explains a board that looks nearer in the image than in the depth): the priors then share the
+difference out, and the covariance of T_flange_cam carries what that leaves unknown; views at two
+distances separate them. The batch objective gains theta as parameters (their Jacobian analytic,
+from predict_frame) and its prior rows; the noise learning runs on it when the declared model
+fits badly, and every method then solves the adjusted problem.
 """
 
 from __future__ import annotations
@@ -24,7 +29,18 @@ from estimator.solve.batch import BatchObjective
 from estimator.solve.measurement_model import predict_frame
 from estimator.solve.problem import CalibrationProblem
 
-NUISANCE = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "board_scale_x", "board_scale_y")
+NUISANCE = (
+    "fx_px",
+    "fy_px",
+    "cx_px",
+    "cy_px",
+    "k1",
+    "k2",
+    "board_scale_x",
+    "board_scale_y",
+    "depth_scale",
+    "depth_offset_m",
+)
 # Prior sigmas: focal lengths as a fraction of the declared one, the rest as they are.
 FOCAL_PRIOR_FRACTION = 0.05
 PRIOR_SIGMA = {
@@ -34,6 +50,8 @@ PRIOR_SIGMA = {
     "k2": 0.5,
     "board_scale_x": 0.03,
     "board_scale_y": 0.03,
+    "depth_scale": 0.02,
+    "depth_offset_m": 0.005,
 }
 
 
@@ -45,7 +63,8 @@ def prior_sigma(problem: CalibrationProblem) -> np.ndarray:
 
 
 def adjusted_problem(problem: CalibrationProblem, theta: np.ndarray) -> CalibrationProblem:
-    """The problem with the camera and the board corrected by theta (NUISANCE order)."""
+    """The problem with the camera, the board and the depth bias corrected by theta (NUISANCE
+    order; the depth bias replaced: the declared problem has none)."""
     k = problem.intrinsics
     dist = list(k.dist) + [0.0] * (5 - len(k.dist))
     dist[0] += float(theta[4])
@@ -63,7 +82,8 @@ def adjusted_problem(problem: CalibrationProblem, theta: np.ndarray) -> Calibrat
         replace(f, markers=[replace(m, corners_board=m.corners_board * scale) for m in f.markers])
         for f in problem.frames
     ]
-    return replace(problem, intrinsics=intrinsics, frames=frames)
+    depth_bias = (float(theta[8]), float(theta[9]))
+    return replace(problem, intrinsics=intrinsics, frames=frames, depth_bias=depth_bias)
 
 
 class SelfCalibrationObjective:

@@ -30,7 +30,8 @@ index in CASES (the same in every run), as the sweeps do; a render trial whose r
 the board from every view is drawn again (RENDER_REDRAWS).
 
     .venv/bin/python -m experiments.bench.robustness [--trials 50] [--render-trials 20] [--seed 0]
-        [--fidelity measurements|render|both] [--workers 2] [--json OUT] [--plot OUT.png]
+        [--fidelity measurements|render|both] [--cases WORD,...] [--workers 2] [--json OUT]
+        [--plot OUT.png]
 """
 
 from __future__ import annotations
@@ -79,14 +80,20 @@ NEES_RANGE = (4.0, 9.0)
 # trial is drawn again from default_rng([seed, case, trial, k]), k = 1, 2, ... up to this many times.
 RENDER_REDRAWS = 4
 BOUND_SAMPLES = 2000
-# Warning kinds, told apart by words of the fit check and the observability check (first match).
+# Warning kinds, told apart by words of the fit check and the observability check (a warning
+# counts as every kind whose words it contains; the rejection warning quotes its likely cause).
 WARNING_KINDS = (
     ("were left out as outliers", "rejections"),
     ("the arm is less exact", "arm"),
     ("the depth is biased", "depth bias"),
+    ("the depth reads", "depth bias"),
     ("depth and pixels disagree", "depth noise"),
     ("the board looks", "board scale"),
+    ("the board is printed", "board scale"),
+    ("cannot tell the board's print scale", "scale ambiguity"),
     ("grow toward the image border", "intrinsics"),
+    ("the intrinsics are off", "intrinsics"),
+    ("the lens distortion differs", "intrinsics"),
     ("the corners fit", "pixel noise"),
     ("the prior disagrees", "prior"),
     ("observable", "observability"),
@@ -228,8 +235,9 @@ def render_inputs(case: Case, rng: np.random.Generator, seed: int, trial: int) -
 # --- one trial ---------------------------------------------------------------------------------
 
 
-def _warning_kind(text: str) -> str:
-    return next((kind for words, kind in WARNING_KINDS if words in text), text.split(":")[0][:40])
+def _warning_kinds(text: str) -> set[str]:
+    kinds = {kind for words, kind in WARNING_KINDS if words in text}
+    return kinds or {text.split(":")[0][:40]}
 
 
 def _rss(values) -> float:
@@ -285,7 +293,7 @@ def run_trial(case_index: int, seed: int, trial: int) -> dict:
             "error_mm": 1e3 * error_m,
             "error_deg": math.degrees(error_rad),
             "nees": nees,
-            "warnings": sorted({_warning_kind(w) for w in result.warnings}),
+            "warnings": sorted(set().union(*(_warning_kinds(w) for w in result.warnings))),
             "rejected": result.observations_rejected / max(problem.observation_count, 1),
         }
     return out
@@ -440,6 +448,10 @@ def run_cases(cases: list[Case], trials: int, seed: int, workers: int, progress:
     return {key: summarise(t) for key, t in results.items()}
 
 
+def _selected(case: Case, words: str | None) -> bool:
+    return words is None or any(w.strip() and w.strip() in case.name for w in words.split(","))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--trials", type=int, default=50, help="trials per measurement case")
@@ -447,6 +459,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--fidelity", choices=(MEASUREMENTS, RENDER, "both"), default="both")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--cases",
+        help="only the cases whose name contains one of these comma-separated words (e.g. 'depth,board')",
+    )
     parser.add_argument("--json", help="write the summaries to this file")
     parser.add_argument("--plot", help="write a PNG: median errors and the default's NEES per case")
     args = parser.parse_args(argv)
@@ -456,7 +472,7 @@ def main(argv: list[str] | None = None) -> int:
     summaries, start = {}, time.perf_counter()
     for fidelity in fidelities:
         trials = args.trials if fidelity == MEASUREMENTS else args.render_trials
-        cases = [c for c in CASES if c.fidelity == fidelity]
+        cases = [c for c in CASES if c.fidelity == fidelity and _selected(c, args.cases)]
         summaries |= run_cases(cases, trials, args.seed, args.workers)
     print(f"default method: {DEFAULT_METHOD}; errors against the truth; seed {args.seed}")
     for key, summary in summaries.items():
