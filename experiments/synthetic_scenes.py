@@ -34,10 +34,15 @@ def scene(
     trajectory: str = "rotation-rich",
     views: int | None = None,
 ) -> list[FrameObservations]:
-    """Synthetic observations of the default board along the default (or the paper's) views;
+    """Synthetic observations of the default board along the default views (trajectory
+    'rotation-rich'), their angles all at one distance ('orbit') or the paper's views ('paper');
     views: keep only the first this many."""
-    make = rotation_rich_waypoints if trajectory == "rotation-rich" else paper_waypoints
-    flange_poses = [w.T_base_flange for w in make(T_BASE_BOARD, T_flange_cam, SCENARIO.trajectory.distance_m)]
+    distance = SCENARIO.trajectory.distance_m
+    if trajectory == "paper":
+        waypoints = paper_waypoints(T_BASE_BOARD, T_flange_cam, distance)
+    else:
+        waypoints = rotation_rich_waypoints(T_BASE_BOARD, T_flange_cam, distance, trajectory == "orbit")
+    flange_poses = [w.T_base_flange for w in waypoints]
     return synthetic_observations(
         BOARD,
         INTRINSICS,

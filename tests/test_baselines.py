@@ -8,14 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import invert, pose_error
-from estimator.geometry.waypoints import ROTATION_RICH_VIEWS, look_at_board
-from estimator.observe.observations import FrameObservations
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from estimator.geometry.transforms import pose_error
 from estimator.solve.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS, opencv_calibrate
 from estimator.solve.calibration import MethodOptions
 from estimator.solve.problem import CalibrationInputError, CalibrationProblem, build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
+from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 # Largest errors of T_flange_cam (mm, degrees) allowed with the default noise. Measured over 20 seeds
 # on the default views (two distances), mean (largest): 1.0 (1.8-2.0) mm for tsai, park, horaud and
@@ -25,27 +22,11 @@ NOISY_BOUND_MM_DEFAULT = 2.5
 NOISY_BOUND_DEG = 0.25
 
 
-def one_distance_views(T_flange_cam: np.ndarray, rng: np.random.Generator) -> list[FrameObservations]:
-    """The default views' angles, all from the scenario's distance: an orbit of the board centre, on
-    which every motion is a rotation about that point (andreff and li cannot fix the scale)."""
-    d = SCENARIO.trajectory.distance_m
-    flange = [
-        T_BASE_BOARD @ look_at_board(tilt, az, roll, d) @ invert(T_flange_cam)
-        for tilt, az, roll, _ in ROTATION_RICH_VIEWS
-    ]
-    return synthetic_observations(
-        BOARD, INTRINSICS, T_flange_cam, T_BASE_BOARD, flange, SyntheticNoise(), rng
-    )
-
-
 @cache
 def _problem(seed: int, exact: bool, trajectory: str) -> tuple[CalibrationProblem, np.ndarray]:
     rng = np.random.default_rng(seed)
     X = random_mount(rng)
-    if trajectory == "one-distance":
-        observations = one_distance_views(X, rng)
-    else:
-        observations = scene(X, rng, exact=exact, trajectory=trajectory)
+    observations = scene(X, rng, exact=exact, trajectory=trajectory)
     return build_problem(observations, BOARD, INTRINSICS), X
 
 
@@ -81,7 +62,7 @@ def test_noisy_views_give_the_mount_within_millimetres(method: str) -> None:
 
 @pytest.mark.parametrize("method", OPENCV_METHODS)
 def test_an_orbit_at_one_distance_suits_all_but_andreff_and_li(method: str) -> None:
-    problem, X = _problem(0, False, "one-distance")
+    problem, X = _problem(0, False, "orbit")
     if method in JOINT_LINEAR_METHODS:
         with pytest.raises(CalibrationInputError, match="from one distance"):
             opencv_calibrate(problem, MethodOptions(), method)

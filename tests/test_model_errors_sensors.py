@@ -220,7 +220,7 @@ def test_vignetting_and_light_gradient_change_the_board_brightness_as_set() -> N
         "light_gradient_direction_deg": 120.0,
     }
     on, off = _cell(seed=5, image=settings), _cell(seed=5)
-    lit, plain = _capture_pair(on, off, 1)
+    lit, plain = _capture_pair(on, off, 2)  # a near view: the board spans much of the image
     on.close()
     off.close()
     gain = _expected_gain(on, *settings.values())

@@ -189,9 +189,10 @@ def test_a_protective_stop_stops_the_session_and_says_so(real_cell: RealCell, tm
 def test_dry_run_and_refusals_move_nothing(real_cell: RealCell, tmp_path: Path, capsys) -> None:
     scenario = _scenario()
     waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", scenario, count=3)
-    boxed = tmp_path / "boxed.toml"  # a workspace box that leaves out the first (highest) waypoint
-    y0 = scenario_waypoints(scenario)[0].T_base_flange[1, 3]
-    boxed.write_text(CELL_TOML.replace("[robot]", f"[robot]\nworkspace_upper_m = [1.0, {y0 - 0.01}, 1.0]"))
+    boxed = tmp_path / "boxed.toml"  # a workspace box that leaves out the waypoint farthest along base y
+    y = sorted(w.T_base_flange[1, 3] for w in scenario_waypoints(scenario)[:3])
+    upper = 0.5 * (y[1] + y[2])
+    boxed.write_text(CELL_TOML.replace("[robot]", f"[robot]\nworkspace_upper_m = [1.0, {upper}, 1.0]"))
     out = tmp_path / "recorded"
     with real_cell.lock:
         start = real_cell.cell.joints.copy()

@@ -114,18 +114,20 @@ def look_at_board(tilt_deg: float, azimuth_deg: float, roll_deg: float, distance
 
 
 def rotation_rich_waypoints(
-    T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float
+    T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float, one_distance: bool = False
 ) -> list[Waypoint]:
     """The default trajectory: 17 views of the board centre with tilts and rolls, at NEAR and FAR
-    times distance_m (ROTATION_RICH_VIEWS)."""
+    times distance_m (ROTATION_RICH_VIEWS); one_distance: every view at distance_m (an orbit of
+    the board centre, on which every motion is a rotation about it)."""
     T_cam_flange = invert(T_flange_cam)
     return [
         Waypoint(
             i,
-            f"tilt {tilt} az {az} roll {roll} at {factor * distance_m:.3f} m",
-            T_base_flange=T_base_board @ look_at_board(tilt, az, roll, factor * distance_m) @ T_cam_flange,
+            f"tilt {tilt} az {az} roll {roll} at {d:.3f} m",
+            T_base_flange=T_base_board @ look_at_board(tilt, az, roll, d) @ T_cam_flange,
         )
         for i, (tilt, az, roll, factor) in enumerate(ROTATION_RICH_VIEWS)
+        for d in [distance_m if one_distance else factor * distance_m]
     ]
 
 
