@@ -25,7 +25,7 @@ from scipy.stats import chi2
 from estimator.solve.measurement_model import predict_frame
 from estimator.solve.noise_learning import LearnedNoise
 from estimator.solve.problem import CalibrationProblem
-from estimator.solve.self_calibration import NUISANCE
+from estimator.solve.self_calibration import NUISANCE, PRIOR_SIGMA
 
 # A group fits badly when its chi-square per degree of freedom at the declared noise exceeds this
 # (its learned sigma is then more than 1.5x the declared one).
@@ -36,6 +36,9 @@ PRIOR_CONFLICT_PROBABILITY = 1e-3
 PATTERN_SHARE = 0.3
 # The print scale and the depth scale are "not told apart" above this correlation of their estimates.
 SCALE_CORRELATION = 0.9
+# ... and the depth scale is "left to the priors" when its sigma exceeds this fraction of its
+# prior's: 0.7 on an orbit of the default angles, 0.03-0.1 on the default two-distance views.
+SCALE_UNRESOLVED = 0.25
 # A self-calibrated correction is reported when it is more than SIGNIFICANT sigmas from the declared
 # model and larger than its NOTEWORTHY size (below that it changes the mount by well under 0.1 mm).
 SIGNIFICANT = 3.0
@@ -260,8 +263,8 @@ def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
     if not findings:
         return []
     misfit = ", ".join(
-        f"{name} {np.sqrt(learned.ratios[name]):.1f}x"
-        for name in ("pixels", "depth")
+        f"{word} {np.sqrt(learned.ratios[name]):.1f}x"
+        for name, word in (("pixels", "corners"), ("depth", "depths"))
         if name in learned.ratios
     )
     return [
@@ -272,9 +275,10 @@ def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
 
 
 def _scale_ambiguity(learned: LearnedNoise, patterns: dict) -> list[str]:
-    """A warning when the views could not tell the board's print scale from the depth's scale
-    (their estimates correlated beyond SCALE_CORRELATION): the split between the two rests on
-    their priors, and the mount's covariance carries it."""
+    """A warning when the views could not tell the board's print scale from the depth's scale:
+    their estimates correlated beyond SCALE_CORRELATION and the depth scale's sigma more than
+    SCALE_UNRESOLVED of its prior's (the split between the two then rests on their priors, and
+    the mount's covariance carries it)."""
     names = list(NUISANCE)
     C = learned.theta_covariance
     board = np.zeros(len(names))
@@ -283,7 +287,9 @@ def _scale_ambiguity(learned: LearnedNoise, patterns: dict) -> list[str]:
     depth[names.index("depth_scale")] = 1.0
     correlation = float(board @ C @ depth / np.sqrt((board @ C @ board) * (depth @ C @ depth)))
     patterns["print_depth_scale_correlation"] = correlation
-    if abs(correlation) < SCALE_CORRELATION:
+    resolved = np.sqrt(depth @ C @ depth) / PRIOR_SIGMA["depth_scale"]
+    patterns["depth_scale_sigma_over_prior"] = float(resolved)
+    if abs(correlation) < SCALE_CORRELATION or resolved < SCALE_UNRESOLVED:
         return []
     return [
         f"these views cannot tell the board's print scale from the depth's scale (their estimates "
