@@ -254,7 +254,8 @@ class TrajectorySettings(Section):
     """Where the arm goes.
 
     kind 'rotation-rich' (default): views of the board centre tilted 15-35
-    degrees about two board axes and rolled about the optical axis.
+    degrees about two board axes and rolled about the optical axis, alternating
+    between 0.9 and 1.25 times distance_m (estimator.geometry.waypoints).
     kind 'paper': the paper's fixed-orientation translations of 30-40 mm in x, y, z.
     kind 'file': waypoints read from ``file`` (CSV, see the README).
     """
