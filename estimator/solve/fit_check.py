@@ -53,6 +53,8 @@ NOTEWORTHY = {
     "board_scale_y": 0.001,
     "depth_scale": 0.001,
     "depth_offset_m": 0.0005,
+    "board_bend_x_m": 0.0003,
+    "board_bend_y_m": 0.0003,
 }
 
 
@@ -242,6 +244,12 @@ def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
             f"{100 * np.expm1(t['board_scale_y']):+.2f} % (y) off its definition (+-"
             f"{100 * sigma['board_scale_x']:.2f} %): measure the print (its 100 mm bar) and correct the "
             "board file"
+        )
+    if found("board_bend_x_m", "board_bend_y_m"):
+        findings.append(
+            f"the board is bent out of its plane: its centre stands {1e3 * t['board_bend_x_m']:+.2f} mm "
+            f"(along x) and {1e3 * t['board_bend_y_m']:+.2f} mm (along y) off its edges (+-"
+            f"{1e3 * sigma['board_bend_x_m']:.2f} mm): mount it flat (glass or aluminium)"
         )
     if found("depth_scale", "depth_offset_m"):
         gain = np.exp(t["depth_scale"])

@@ -80,9 +80,10 @@ class FramePrediction:
     """Whitened residual W (measured - predicted), (m,), and the Jacobians of the whitened
     prediction W h with respect to the state perturbation (m, dim) and the flange pose
     perturbation delta (m, 6). pixels: (P, 2) predicted corners; depth_m: (P,) predicted
-    depth; points_cam: (P, 3), all in marker order. J_camera (m, 10), with camera_jacobian: with
+    depth; points_cam: (P, 3), all in marker order. J_camera (m, 12), with camera_jacobian: with
     respect to fx, fy, cx, cy, k1, k2 (added to the distortion), the board's scale along its x
-    and y, and the depth bias's log scale and offset (estimator.solve.self_calibration.NUISANCE)."""
+    and y, the depth bias's log scale and offset and the board's bend along x and y
+    (estimator.solve.self_calibration.NUISANCE)."""
 
     residual: np.ndarray
     J_state: np.ndarray
@@ -130,6 +131,10 @@ def predict_frame(
     if state.T_base_board is not None:
         R_B, t_B = state.T_base_board[:3, :3], state.T_base_board[:3, 3]
         corners_board = np.concatenate([m.corners_board for m in markers])
+        if problem.board_bend_m != (0.0, 0.0):
+            corners_board = corners_board + np.outer(
+                _bend_shapes(problem, corners_board) @ problem.board_bend_m, [0, 0, 1]
+            )
         p_base = corners_board @ R_B.T + t_B
     else:
         rows = np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
@@ -194,6 +199,12 @@ def predict_frame(
     )
 
 
+def _bend_shapes(problem: CalibrationProblem, corners_board: np.ndarray) -> np.ndarray:
+    """(P, 2) the board bend's shapes 1 - u^2, 1 - v^2 at the corners (CalibrationProblem.board_bend_m)."""
+    half = 0.5 * np.asarray(problem.board.size_m)
+    return 1.0 - (corners_board[:, :2] / half) ** 2
+
+
 def _camera_jacobian(
     problem: CalibrationProblem,
     state: HandEyeState,
@@ -203,11 +214,11 @@ def _camera_jacobian(
     d_meas_d_base: np.ndarray,
     depth: np.ndarray,
 ) -> np.ndarray:
-    """(m, 10) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
-    depth log scale, depth offset); depth (P,): the predicted depths."""
+    """(m, 12) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
+    depth log scale, depth offset, board bend x, board bend y); depth (P,): the predicted depths."""
     k = problem.intrinsics
     P = len(xy)
-    J = np.zeros((P, 3, 10))  # per point: (u, v, depth) rows
+    J = np.zeros((P, 3, 12))  # per point: (u, v, depth) rows
     J[:, 0, 0], J[:, 1, 1] = xy_d[:, 0], xy_d[:, 1]
     J[:, 0, 2] = J[:, 1, 3] = 1.0
     r2 = np.sum(xy * xy, axis=1)
@@ -217,14 +228,19 @@ def _camera_jacobian(
     if state.T_base_board is not None:  # landmarks have no board to scale
         corners_board = np.concatenate([m.corners_board for m in markers])
         R_B = state.T_base_board[:3, :3]
+        shapes = _bend_shapes(problem, corners_board)
+        d_normal = np.einsum("pij,j->pi", d_meas_d_base, R_B[:, 2])  # (P, 3): per metre along board z
         for axis in (0, 1):
             d_base = R_B[:, axis][None, :] * corners_board[:, axis : axis + 1]  # (P, 3)
-            J[:, :, 6 + axis] = np.einsum("pij,pj->pi", d_meas_d_base, d_base)
+            # scaling moves the corners in the plane, and so along the bend (d shape / d log scale)
+            d_bend = -2.0 * problem.board_bend_m[axis] * (1.0 - shapes[:, axis])
+            J[:, :, 6 + axis] = np.einsum("pij,pj->pi", d_meas_d_base, d_base) + d_bend[:, None] * d_normal
+            J[:, :, 10 + axis] = shapes[:, axis : axis + 1] * d_normal
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     rows = []
     for i, m in enumerate(markers):
         sl = slice(4 * i, 4 * i + 4)
-        block = [J[sl, :2].reshape(8, 10)] + ([J[sl, 2]] if m.depth_m is not None else [])
+        block = [J[sl, :2].reshape(8, 12)] + ([J[sl, 2]] if m.depth_m is not None else [])
         rows.append(m.whitening @ np.concatenate(block))
     return np.concatenate(rows)

@@ -109,7 +109,9 @@ class CalibrationProblem:
     landmark of corner c of marker marker_ids[k] has index 4 * k + c. rejected: one line
     per frame or marker left out, with the reason. depth_bias: (log scale s, offset o metres) of
     the measured depth, measured = exp(s) (z + o) for a true depth z (self-calibration sets it;
-    none by default)."""
+    none by default). board_bend_m: (bx, by) sag of the board out of its plane, corner z +=
+    bx (1 - u^2) + by (1 - v^2), u = 2 x / width, v = 2 y / height (board frame, size_m; none by
+    default)."""
 
     intrinsics: CameraIntrinsics
     board: BoardDefinition
@@ -118,6 +120,7 @@ class CalibrationProblem:
     marker_ids: list[int]
     rejected: list[str] = field(default_factory=list)
     depth_bias: tuple[float, float] = (0.0, 0.0)
+    board_bend_m: tuple[float, float] = (0.0, 0.0)
 
     @property
     def observation_count(self) -> int:

@@ -5,11 +5,13 @@ does not fit.
 The nuisance parameters theta (NUISANCE) are corrections to what the problem declares:
 focal lengths and principal point (pixels), the radial distortion k1, k2 (added to the declared
 coefficients), the printed board's scale along its x and y (log scales, so about the
-fractions: corners scaled by exp(theta) about the board frame's origin), and the depth bias
+fractions: corners scaled by exp(theta) about the board frame's origin), the depth bias
 (CalibrationProblem.depth_bias: measured depth = exp(depth_scale) (z + depth_offset_m), z the
-true depth). Each has a Gaussian prior (PRIOR_SIGMA: factory intrinsics are a few tenths of a
+true depth) and the board's sag out of its plane (CalibrationProblem.board_bend_m: a sheet on
+foam sags by a millimetre; unmodelled, self-calibration bent the focal length and the
+distortion instead). Each has a Gaussian prior (PRIOR_SIGMA: factory intrinsics are a few tenths of a
 percent and a few pixels off, a print a few tenths of a percent, a stereo camera's depth a
-percent or two and a few millimetres), so theta stays determined when the views do not separate
+percent or two and a few millimetres, a sag 2 mm), so theta stays determined when the views do not separate
 it from the mount. From views at one distance a print scale and a depth scale look alike (either
 explains a board that looks nearer in the image than in the depth): the priors then share the
 difference out, and the covariance of T_flange_cam carries what that leaves unknown; views at two
@@ -40,6 +42,8 @@ NUISANCE = (
     "board_scale_y",
     "depth_scale",
     "depth_offset_m",
+    "board_bend_x_m",
+    "board_bend_y_m",
 )
 # Prior sigmas: focal lengths as a fraction of the declared one, the rest as they are.
 FOCAL_PRIOR_FRACTION = 0.05
@@ -52,6 +56,8 @@ PRIOR_SIGMA = {
     "board_scale_y": 0.03,
     "depth_scale": 0.02,
     "depth_offset_m": 0.005,
+    "board_bend_x_m": 0.002,
+    "board_bend_y_m": 0.002,
 }
 
 
@@ -83,7 +89,8 @@ def adjusted_problem(problem: CalibrationProblem, theta: np.ndarray) -> Calibrat
         for f in problem.frames
     ]
     depth_bias = (float(theta[8]), float(theta[9]))
-    return replace(problem, intrinsics=intrinsics, frames=frames, depth_bias=depth_bias)
+    bend = (float(theta[10]), float(theta[11]))
+    return replace(problem, intrinsics=intrinsics, frames=frames, depth_bias=depth_bias, board_bend_m=bend)
 
 
 class SelfCalibrationObjective:
