@@ -120,15 +120,14 @@ def rotation_rich_waypoints(
     times distance_m (ROTATION_RICH_VIEWS); one_distance: every view at distance_m (an orbit of
     the board centre, on which every motion is a rotation about it)."""
     T_cam_flange = invert(T_flange_cam)
-    return [
-        Waypoint(
-            i,
-            f"tilt {tilt} az {az} roll {roll} at {d:.3f} m",
-            T_base_flange=T_base_board @ look_at_board(tilt, az, roll, d) @ T_cam_flange,
+    waypoints = []
+    for i, (tilt, az, roll, factor) in enumerate(ROTATION_RICH_VIEWS):
+        d = distance_m if one_distance else factor * distance_m
+        T_base_flange = T_base_board @ look_at_board(tilt, az, roll, d) @ T_cam_flange
+        waypoints.append(
+            Waypoint(i, f"tilt {tilt} az {az} roll {roll} at {d:.3f} m", T_base_flange=T_base_flange)
         )
-        for i, (tilt, az, roll, factor) in enumerate(ROTATION_RICH_VIEWS)
-        for d in [distance_m if one_distance else factor * distance_m]
-    ]
+    return waypoints
 
 
 def paper_waypoints(T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float) -> list[Waypoint]:

@@ -209,21 +209,26 @@ class FilterStep:
     rejected: set[tuple[int, int]]
 
 
+def update_groups(problem: CalibrationProblem, start: Start) -> list[list[FrameMeasurements]]:
+    """The frames of each filter update, in order: the frames the closed form came from together
+    (before they are all in, the mount is not determined and a step would follow unconstrained
+    directions), then one frame at a time."""
+    first = max(start.frames_used, 1)
+    return [problem.frames[:first]] + [[f] for f in problem.frames[first:]]
+
+
 def filter_steps(
     problem: CalibrationProblem, options: MethodOptions, iterated: bool, start: Start | None = None
 ) -> Iterator[FilterStep]:
-    """ekf (iterated=False) or iekf over the frames in order, one step per update. The first
-    update takes the frames the closed form came from together: before they are all in, the mount
-    is not determined and a step would follow unconstrained directions. A prior fused after the
-    frames (see prior_first) comes as a last step with frame -1."""
+    """ekf (iterated=False) or iekf over the frames in order, one step per update (update_groups).
+    A prior fused after the frames (see prior_first) comes as a last step with frame -1."""
     start = start or initial_state(problem, options)
     state = start.state
     P = initial_covariance(state, options)
     if prior_first(options, start):
         state, P = apply_prior(state, P, options.prior)
     max_iterations = IEKF_MAX_ITERATIONS if iterated else 1
-    first = max(start.frames_used, 1)
-    for frames in [problem.frames[:first]] + [[f] for f in problem.frames[first:]]:
+    for frames in update_groups(problem, start):
         state, P, used, rejected = update(problem, state, P, frames, max_iterations, options.robust)
         yield FilterStep(frames[-1].frame, state, P, used, rejected)
     if options.prior is not None and not prior_first(options, start):

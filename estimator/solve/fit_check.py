@@ -122,7 +122,7 @@ def _pixel_residuals(problem: CalibrationProblem, learned: LearnedNoise) -> tupl
     """Per used corner: measured minus predicted pixel (N, 2), the prediction (N, 2) and the
     predicted board centre in that frame (N, 2), at the learning pass's optimum."""
     residual, predicted, centre = [], [], []
-    state = learned.first_state or learned.state  # the optimum under the declared camera and board
+    state = learned.state  # without self-calibration: the optimum under the declared camera and board
     for frame in problem.frames:
         keep = [(frame.frame, m.marker_id) not in learned.outliers for m in frame.markers]
         pred = predict_frame(problem, state, frame, jacobians=False)

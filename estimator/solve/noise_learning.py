@@ -91,7 +91,7 @@ class LearnedNoise:
     the robust optimum down-weighted. residuals: per frame the whitened measurement residual at
     the optimum under the learned levels. prior_distance: with a user prior, the squared
     Mahalanobis distance between it and the estimate from the data alone (fit_check).
-    first_state: the optimum under the declared image model. With self-calibration (the corners or
+    With self-calibration (the corners or
     the depths fit worse than MISFIT_SCALE times their noise under the declared model): theta,
     theta_covariance (estimator.solve.self_calibration.NUISANCE order), consider_covariance (6, 6) that
     T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
@@ -108,7 +108,6 @@ class LearnedNoise:
     residuals: list[np.ndarray]
     prior_distance: float | None = None
     time_s: float = 0.0
-    first_state: HandEyeState | None = None
     theta: np.ndarray | None = None
     theta_covariance: np.ndarray | None = None
     consider_covariance: np.ndarray | None = None
@@ -268,7 +267,6 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     P0 = initial_covariance(start, options)
     first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, False)
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
-    first_state = start.plus(first.params[: start.dim])
     final, theta, theta_covariance, consider = first, None, None, None
     ratios_after, chi2_dof_after = None, None
     if max(first.levels.pixel_scale, first.levels.depth_scale) > MISFIT_SCALE:
@@ -296,7 +294,6 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         outliers(scaled, frame_residuals) if options.robust else set(),
         frame_residuals,
         prior_distance,
-        first_state=first_state,
         theta=theta,
         theta_covariance=theta_covariance,
         consider_covariance=consider,

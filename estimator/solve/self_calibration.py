@@ -69,8 +69,8 @@ def prior_sigma(problem: CalibrationProblem) -> np.ndarray:
 
 
 def adjusted_problem(problem: CalibrationProblem, theta: np.ndarray) -> CalibrationProblem:
-    """The problem with the camera, the board and the depth bias corrected by theta (NUISANCE
-    order; the depth bias replaced: the declared problem has none)."""
+    """The problem with the camera, the board, the depth bias and the board's bend corrected by
+    theta (NUISANCE order; the depth bias and the bend replaced: the declared problem has none)."""
     k = problem.intrinsics
     dist = list(k.dist) + [0.0] * (5 - len(k.dist))
     dist[0] += float(theta[4])

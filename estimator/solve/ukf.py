@@ -103,6 +103,7 @@ from estimator.solve.filters import (
     initial_covariance,
     marker_rows,
     prior_first,
+    update_groups,
 )
 from estimator.solve.initialise import initial_state
 from estimator.solve.measurement_model import HandEyeState, predict_frame
@@ -241,10 +242,9 @@ def ukf(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     P = initial_covariance(state, options)
     if prior_first(options, start_point):
         state, P = apply_prior(state, P, options.prior)
-    first = max(start_point.frames_used, 1)
     rejected: set[tuple[int, int]] = set()
     iterations = 0
-    for k, frames in enumerate([problem.frames[:first]] + [[f] for f in problem.frames[first:]]):
+    for k, frames in enumerate(update_groups(problem, start_point)):
         iterated = k == 0 and start_point.frames_used > 0
         state, P, used, failed = update(
             problem, state, P, frames, options.robust, IEKF_MAX_ITERATIONS if iterated else 1
