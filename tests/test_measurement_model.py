@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -39,12 +41,18 @@ def _states(problem, X, rng):
 
 
 @pytest.mark.parametrize(
-    "intrinsics",
-    [INTRINSICS, CameraIntrinsics(640, 480, 600.0, 612.0, 331.3, 228.6, (0.08, -0.2, 1e-3, -2e-3, 0.1))],
+    ("intrinsics", "depth_error"),
+    [
+        (INTRINSICS, False),
+        (CameraIntrinsics(640, 480, 600.0, 612.0, 331.3, 228.6, (0.08, -0.2, 1e-3, -2e-3, 0.1)), True),
+    ],
 )
-def test_jacobians_match_finite_differences(intrinsics: CameraIntrinsics) -> None:
+def test_jacobians_match_finite_differences(intrinsics: CameraIntrinsics, depth_error: bool) -> None:
+    """depth_error: with a depth bias and tilt (self-calibration's) in the model."""
     rng = np.random.default_rng(3)
     problem, X = _problem(rng, intrinsics)
+    if depth_error:
+        problem = replace(problem, depth_bias=(0.01, 0.002), depth_tilt=(0.003, -0.002))
     for state in _states(problem, X, rng):
         for frame in problem.frames[:4]:
             delta = rng.normal(0.0, 1e-3, 6)

@@ -21,7 +21,7 @@ from estimator.solve.measurement_model import HandEyeState, predict_frame
 from estimator.solve.methods import run_method
 from estimator.solve.noise_learning import NoiseLevels, learn_noise, scaled_problem
 from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem
-from estimator.solve.self_calibration import NUISANCE, adjusted_problem
+from estimator.solve.self_calibration import CAMERA_NUISANCE, adjusted_problem
 from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 
 DECLARED = SyntheticNoise()
@@ -187,7 +187,8 @@ def test_biased_depth_is_named_with_its_scale() -> None:
 @pytest.mark.parametrize("trajectory", ["rotation-rich", "orbit"])
 def test_a_print_scale_and_a_depth_scale_are_told_apart_from_two_distances_only(trajectory: str) -> None:
     """Depth 1 % long and 2 mm: on the default views (two distances) self-calibration finds the
-    depth bias (1.00 +- 0.06 % here), keeps the print scale near zero and the mount within 1 mm;
+    depth bias (1.00 +- 0.06 % here), keeps the print scale at zero (insignificant, it is fixed
+    there) and the mount within 1 mm;
     on an orbit (the same angles from one distance) the two scales are 99.7 % correlated, the split
     between them rests on their priors, a warning says so, and the covariance carries it (the
     error stays within a few sigma)."""
@@ -203,9 +204,11 @@ def test_a_print_scale_and_a_depth_scale_are_told_apart_from_two_distances_only(
     delta = pose_minus(result.T_flange_cam, X)
     nees = float(delta @ np.linalg.solve(result.covariance, delta))
     if trajectory == "rotation-rich":
-        assert not ambiguous and abs(fit["print_depth_scale_correlation"]) < 0.7, result.warnings
+        # The print scale is exact: kept near zero, or fixed there by the significance test.
+        assert not ambiguous, result.warnings
+        assert abs(fit.get("print_depth_scale_correlation", 0.0)) < 0.7, fit
         assert abs(fit["self_calibration_depth_scale"] - 0.01) < 0.002, fit
-        assert abs(fit["self_calibration_board_scale_x"]) < 0.004, fit
+        assert abs(fit.get("self_calibration_board_scale_x", 0.0)) < 0.004, fit
         assert pose_error(result.T_flange_cam, X)[0] < 1e-3
     else:
         assert len(ambiguous) == 1 and abs(fit["print_depth_scale_correlation"]) > 0.99, result.warnings
@@ -215,7 +218,7 @@ def test_a_print_scale_and_a_depth_scale_are_told_apart_from_two_distances_only(
 @pytest.mark.parametrize("map_model", ["board", "landmarks"])
 def test_camera_jacobian_matches_finite_differences(map_model: str) -> None:
     """J_camera against central differences of the whitened prediction W h through
-    adjusted_problem, at a theta away from zero (a depth bias included), with distortion (radial and
+    adjusted_problem, at a theta away from zero (a depth bias and tilt included), with distortion (radial and
     tangential), a depth scale in the state and a flange perturbation; landmarks have no board to
     scale (their columns are zero)."""
     rng = np.random.default_rng(900)
@@ -235,8 +238,10 @@ def test_camera_jacobian_matches_finite_differences(map_model: str) -> None:
             [transform_points(T_BASE_BOARD, BOARD.marker_corners(i)) for i in problem.marker_ids]
         )
         state = HandEyeState(X, landmarks_base=corners + rng.normal(0, 1e-3, corners.shape))
-    theta = np.array([3.0, -2.0, 1.5, -1.0, 0.02, -0.01, 0.004, -0.003, 0.012, -0.003, 0.0015, -0.001])
-    steps = np.array([1e-3] * 4 + [1e-6] * 8)
+    theta = np.array(
+        [3.0, -2.0, 1.5, -1.0, 0.02, -0.01, 0.004, -0.003, 0.012, -0.003, 0.0015, -0.001, 0.003, -0.002]
+    )
+    steps = np.array([1e-3] * 4 + [1e-6] * 10)
 
     def whitened_prediction(t: np.ndarray, k: int, delta: np.ndarray) -> np.ndarray:
         adjusted = adjusted_problem(problem, t)
@@ -248,9 +253,9 @@ def test_camera_jacobian_matches_finite_differences(map_model: str) -> None:
     for k in range(len(problem.frames)):
         delta = rng.normal(0, 1e-3, 6)
         J = predict_frame(adjusted, state, adjusted.frames[k], delta, camera_jacobian=True).J_camera
-        assert J.shape == (len(whitened_prediction(theta, k, delta)), len(NUISANCE))
-        for i, name in enumerate(NUISANCE):
-            e = np.zeros(len(NUISANCE))
+        assert J.shape == (len(whitened_prediction(theta, k, delta)), len(CAMERA_NUISANCE))
+        for i, name in enumerate(CAMERA_NUISANCE):
+            e = np.zeros(len(CAMERA_NUISANCE))
             e[i] = steps[i]
             fd = (whitened_prediction(theta + e, k, delta) - whitened_prediction(theta - e, k, delta)) / (
                 2 * steps[i]

@@ -7,8 +7,10 @@ folder a person can open without this project::
                         depth scale, the depth noise model ('depth_noise', see
                         estimator.observe.depth.DepthNoiseModel; optional), the noise of the
                         reported flange poses ('robot_pose_noise': translation_sigma_m,
-                        rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional)
-                        and (simulation) seed, scenario, skipped waypoints
+                        rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional),
+                        the arm whose nominal kinematics the joints are read with ('robot_model',
+                        'ur5' or 'ur5e'; optional, a simulation's is its scenario's robot) and
+                        (simulation) seed, scenario, skipped waypoints
     board.json          the board definition (hec-board v1)
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported
                         T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad;

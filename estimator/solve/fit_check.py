@@ -22,10 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from estimator.geometry.lie import pose_minus
 from estimator.solve.measurement_model import predict_frame
 from estimator.solve.noise_learning import LearnedNoise
 from estimator.solve.problem import CalibrationProblem
-from estimator.solve.self_calibration import NUISANCE, PRIOR_SIGMA
+from estimator.solve.self_calibration import KINEMATIC_NUISANCE, PRIOR_SIGMA, adjusted_problem
 
 # A group fits badly when its chi-square per degree of freedom at the declared noise exceeds this
 # (its learned sigma is then more than 1.5x the declared one).
@@ -55,7 +56,12 @@ NOTEWORTHY = {
     "depth_offset_m": 0.0005,
     "board_bend_x_m": 0.0003,
     "board_bend_y_m": 0.0003,
+    "depth_tilt_x": 0.0005,
+    "depth_tilt_y": 0.0005,
 }
+# The arm's corrected kinematics are reported when they move the flange poses by this much (RMS).
+NOTEWORTHY_FLANGE_MOVE_M = 0.0002
+NOTEWORTHY_FLANGE_TURN_RAD = float(np.radians(0.01))
 
 
 @dataclass
@@ -96,7 +102,7 @@ def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int)
         if ratio.get("depth", 0) > BAD_FIT:
             check.warnings += _depth_pattern(problem, learned, check.patterns)
     else:
-        check.warnings += _self_calibration(learned, check.patterns)
+        check.warnings += _self_calibration(problem, learned, check.patterns)
         check.warnings += _scale_ambiguity(learned, check.patterns)
         check.warnings += _noise_left(after)
     if prior_distance is not None:
@@ -227,15 +233,16 @@ def _noise_left(after: dict[str, float]) -> list[str]:
     return words
 
 
-def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
+def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patterns: dict) -> list[str]:
     """What the self-calibration found: each correction more than SIGNIFICANT sigmas and
-    NOTEWORTHY in size from the declared model, with its likely cause and remedy."""
-    t = dict(zip(NUISANCE, learned.theta, strict=True))
-    sigma = dict(zip(NUISANCE, learned.theta_sigma, strict=True))
+    NOTEWORTHY in size from the declared model, with its likely cause and remedy (the arm's: the
+    flange poses its corrected kinematics move, when that is NOTEWORTHY)."""
+    t = dict(zip(learned.theta_names, learned.theta, strict=True))
+    sigma = dict(zip(learned.theta_names, learned.theta_sigma, strict=True))
     patterns.update({f"self_calibration_{name}": float(v) for name, v in t.items()})
 
     def found(*names: str) -> bool:
-        return any(abs(t[n]) > max(SIGNIFICANT * sigma[n], NOTEWORTHY[n]) for n in names)
+        return any(n in t and abs(t[n]) > max(SIGNIFICANT * sigma[n], NOTEWORTHY[n]) for n in names)
 
     findings = []
     if found("board_scale_x", "board_scale_y"):
@@ -258,6 +265,14 @@ def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
             f"{100 * sigma['depth_scale']:.2f} %, +-{1e3 * sigma['depth_offset_m']:.2f} mm): run the "
             "camera's on-chip calibration or Tare"
         )
+    if found("depth_tilt_x", "depth_tilt_y"):
+        findings.append(
+            f"the depth tilts across the image by {1e3 * t['depth_tilt_x']:+.2f} mm (along x) and "
+            f"{1e3 * t['depth_tilt_y']:+.2f} mm (along y) per metre (+-{1e3 * sigma['depth_tilt_x']:.2f}), "
+            "as a depth-to-colour registration turned by "
+            f"{np.degrees(np.hypot(t['depth_tilt_x'], t['depth_tilt_y'])):.3f} deg would: recalibrate "
+            "the camera's depth-to-colour extrinsics"
+        )
     if found("fx_px", "fy_px", "cx_px", "cy_px"):
         findings.append(
             f"the intrinsics are off by fx {t['fx_px']:+.2f}, fy {t['fy_px']:+.2f}, cx {t['cx_px']:+.2f}, "
@@ -268,6 +283,8 @@ def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
             f"the lens distortion differs from the dataset's by k1 {t['k1']:+.4f}, k2 {t['k2']:+.4f}: "
             "calibrate the camera's intrinsics with distortion"
         )
+    if KINEMATIC_NUISANCE[0] in t:
+        findings += _kinematic_finding(problem, learned, patterns)
     if not findings:
         return []
     misfit = ", ".join(
@@ -276,9 +293,32 @@ def _self_calibration(learned: LearnedNoise, patterns: dict) -> list[str]:
         if name in learned.ratios
     )
     return [
-        f"the declared model did not fit (the {misfit} their noise), so the camera, board and depth "
-        "were calibrated with the mount (self-calibration; the mount's covariance includes their "
-        "uncertainty): " + "; ".join(findings)
+        f"the declared model did not fit (the {misfit} their noise), so the camera, board, depth and "
+        "arm were calibrated with the mount where the data showed them off (self-calibration; the "
+        "mount's covariance includes their uncertainty): " + "; ".join(findings)
+    ]
+
+
+def _kinematic_finding(problem: CalibrationProblem, learned: LearnedNoise, patterns: dict) -> list[str]:
+    """The flange poses the self-calibrated kinematics move (RMS and largest over the views), when
+    the RMS is NOTEWORTHY."""
+    adjusted = adjusted_problem(problem, learned.theta, learned.theta_names)
+    moves = np.array(
+        [
+            pose_minus(a.T_base_flange, f.T_base_flange)
+            for a, f in zip(adjusted.frames, problem.frames, strict=True)
+        ]
+    )
+    translation_m, rotation_rad = np.linalg.norm(moves[:, :3], axis=1), np.linalg.norm(moves[:, 3:], axis=1)
+    rms_m, rms_rad = float(np.sqrt(np.mean(translation_m**2))), float(np.sqrt(np.mean(rotation_rad**2)))
+    patterns.update({"kinematic_correction_rms_m": rms_m, "kinematic_correction_rms_rad": rms_rad})
+    if rms_m < NOTEWORTHY_FLANGE_MOVE_M and rms_rad < NOTEWORTHY_FLANGE_TURN_RAD:
+        return []
+    return [
+        f"the arm's kinematics differ from the nominal {problem.kinematics.name} model: corrected, they move "
+        f"the reported flange poses by {1e3 * rms_m:.2f} mm / {np.degrees(rms_rad):.3f} deg RMS (up to "
+        f"{1e3 * translation_m.max():.2f} mm / {np.degrees(rotation_rad.max()):.3f} deg) over these views: "
+        "use the arm's own calibrated kinematics (a UR's calibration.conf) where the poses come from"
     ]
 
 
@@ -287,7 +327,9 @@ def _scale_ambiguity(learned: LearnedNoise, patterns: dict) -> list[str]:
     their estimates correlated beyond SCALE_CORRELATION and the depth scale's sigma more than
     SCALE_UNRESOLVED of its prior's (the split between the two then rests on their priors, and
     the mount's covariance carries it)."""
-    names = list(NUISANCE)
+    names = list(learned.theta_names)
+    if not {"board_scale_x", "board_scale_y", "depth_scale"} <= set(names):
+        return []
     C = learned.theta_covariance
     board = np.zeros(len(names))
     board[[names.index("board_scale_x"), names.index("board_scale_y")]] = 0.5

@@ -5,7 +5,8 @@ A board corner c (board frame) seen in frame i:
     p_base = T_base_board @ c                 (board mode), or a landmark (landmark mode)
     p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
     pixel  = project(p_cam)                   (K and OpenCV distortion)
-    depth  = exp(s) (depth_scale * p_cam.z + o)   (s, o: problem.depth_bias, 0 unless self-calibrated)
+    depth  = exp(s) (depth_scale * p_cam.z + o + tx p_cam.x + ty p_cam.y)
+             (s, o: problem.depth_bias, tx, ty: problem.depth_tilt, 0 unless self-calibrated)
 
 State perturbations follow estimator.geometry.lie: (dt, dtheta) for T_flange_cam and
 T_base_board, (dx, dy, dz) for a landmark, d(scale) for the depth scale, in this
@@ -80,10 +81,11 @@ class FramePrediction:
     """Whitened residual W (measured - predicted), (m,), and the Jacobians of the whitened
     prediction W h with respect to the state perturbation (m, dim) and the flange pose
     perturbation delta (m, 6). pixels: (P, 2) predicted corners; depth_m: (P,) predicted
-    depth; points_cam: (P, 3), all in marker order. J_camera (m, 12), with camera_jacobian: with
+    depth; points_cam: (P, 3), all in marker order. J_camera (m, 14), with camera_jacobian: with
     respect to fx, fy, cx, cy, k1, k2 (added to the distortion), the board's scale along its x
-    and y, the depth bias's log scale and offset and the board's bend along x and y
-    (estimator.solve.self_calibration.NUISANCE)."""
+    and y, the depth bias's log scale and offset, the board's bend along x and y and the depth's
+    tilt along x and y
+    (estimator.solve.self_calibration.CAMERA_NUISANCE)."""
 
     residual: np.ndarray
     J_state: np.ndarray
@@ -144,7 +146,8 @@ def predict_frame(
     pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
     scale = 1.0 if state.depth_scale is None else state.depth_scale
     gain = float(np.exp(problem.depth_bias[0]))
-    depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1])
+    tilt = problem.depth_tilt
+    depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1] + p_cam[:, :2] @ tilt)
 
     residual_parts = []
     for k, m in enumerate(markers):
@@ -163,7 +166,8 @@ def predict_frame(
     d_cam_d_X = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
     d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
     # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
-    d_meas_d_cam = np.concatenate([d_pix, gain * scale * np.broadcast_to([0.0, 0.0, 1.0], (P, 1, 3))], axis=1)
+    d_depth = gain * np.array([tilt[0], tilt[1], scale])
+    d_meas_d_cam = np.concatenate([d_pix, np.broadcast_to(d_depth, (P, 1, 3))], axis=1)
 
     n = state.dim
     J_state_points = np.zeros((P, 3, n))
@@ -193,7 +197,7 @@ def predict_frame(
         J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
     J_camera = None
     if camera_jacobian:
-        J_camera = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base, depth)
+        J_camera = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base, depth, p_cam)
     return FramePrediction(
         residual, np.concatenate(J_state_rows), np.concatenate(J_flange_rows), pixels, depth, p_cam, J_camera
     )
@@ -213,12 +217,14 @@ def _camera_jacobian(
     xy_d: np.ndarray,
     d_meas_d_base: np.ndarray,
     depth: np.ndarray,
+    p_cam: np.ndarray,
 ) -> np.ndarray:
-    """(m, 12) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
-    depth log scale, depth offset, board bend x, board bend y); depth (P,): the predicted depths."""
+    """(m, 14) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
+    depth log scale, depth offset, board bend x, board bend y, depth tilt x, depth tilt y); depth
+    (P,): the predicted depths; p_cam (P, 3): the points in the camera frame."""
     k = problem.intrinsics
     P = len(xy)
-    J = np.zeros((P, 3, 12))  # per point: (u, v, depth) rows
+    J = np.zeros((P, 3, 14))  # per point: (u, v, depth) rows
     J[:, 0, 0], J[:, 1, 1] = xy_d[:, 0], xy_d[:, 1]
     J[:, 0, 2] = J[:, 1, 3] = 1.0
     r2 = np.sum(xy * xy, axis=1)
@@ -238,9 +244,10 @@ def _camera_jacobian(
             J[:, :, 10 + axis] = shapes[:, axis : axis + 1] * d_normal
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
+    J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
     rows = []
     for i, m in enumerate(markers):
         sl = slice(4 * i, 4 * i + 4)
-        block = [J[sl, :2].reshape(8, 12)] + ([J[sl, 2]] if m.depth_m is not None else [])
+        block = [J[sl, :2].reshape(8, 14)] + ([J[sl, 2]] if m.depth_m is not None else [])
         rows.append(m.whitening @ np.concatenate(block))
     return np.concatenate(rows)

@@ -105,8 +105,8 @@ def _check_usable(
 def camera_problem(
     name: str, problem: CalibrationProblem, learned: LearnedNoise | None
 ) -> CalibrationProblem:
-    """The problem with the camera and board a method solved with: the self-calibrated ones when
-    the learning pass needed them, except for seed-ekf (it measures points from the observations
+    """The problem with the camera, board, depth and arm a method solved with: the self-calibrated
+    ones when the learning pass needed them, except for seed-ekf (it measures points from the observations
     with the declared camera)."""
     return problem if learned is None or name == "seed-ekf" else learned.adjusted(problem)
 
@@ -115,7 +115,7 @@ def learned_setup(
     name: str, problem: CalibrationProblem, options: MethodOptions, learned: LearnedNoise
 ) -> tuple[CalibrationProblem, CalibrationProblem, MethodOptions]:
     """What a noise-modelling method solves with the learned noise: the problem with the
-    self-calibrated camera and board if the learning pass needed them (not for seed-ekf, which
+    self-calibrated camera, board, depth and arm if the learning pass needed them (not for seed-ekf, which
     measures points from the observations with the declared camera), that problem at the learned
     levels without the pass's outliers, and the options (the pass over all frames found the
     outliers, so only batch keeps its robust loss)."""

@@ -25,7 +25,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import pose_minus
@@ -42,18 +42,34 @@ from estimator.solve.filters import initial_covariance
 from estimator.solve.initialise import initial_state
 from estimator.solve.measurement_model import HandEyeState
 from estimator.solve.problem import CalibrationProblem, MarkerMeasurement, RobotPoseNoise
-from estimator.solve.self_calibration import NUISANCE, SelfCalibrationObjective, adjusted_problem
+from estimator.solve.self_calibration import (
+    NUISANCE_GROUPS,
+    SelfCalibrationObjective,
+    adjusted_problem,
+    available_groups,
+    group_names,
+)
 
 GROUPS = ("pixels", "depth", "robot_translation", "robot_rotation")
 PRIOR_DOF = 3.0
 MAX_ITERATIONS = 30
 # Each pass's optimum to this relative cost change (the levels move by far more between passes).
 VCE_COST_TOLERANCE = 1e-7
-# The declared camera, board and depth are replaced by self-calibration when the corners or the
-# depths fit worse than this many times their noise (the learned level: a chi-square per degree
+# The declared camera, board, depth (and arm) are replaced by self-calibration when the corners,
+# the depths (or, with the arm's kinematics known, the flange poses) fit worse than this many times
+# their noise (the learned level: a chi-square per degree
 # of freedom above 2.25, estimator.solve.fit_check.BAD_FIT). White noise above the declared level
 # triggers it too; the priors then keep theta near zero, at the cost of the covariance it adds.
 MISFIT_SCALE = 1.5
+# Self-calibration first frees every group the problem can estimate (NUISANCE_GROUPS), then solves
+# again with the groups fixed whose corrections, together, do not differ from zero at this
+# significance (their chi-square with their covariance): each group freed costs accuracy (1.6x the
+# bound with all of them when only the depth was biased).
+GROUP_SIGNIFICANCE = 1e-3
+# ... unless fixing them moves the mount by more than this many of its sigmas with them fixed
+# (Mahalanobis): 10 for a print scale the views cannot tell from the depth's, 2.6 for a depth bias
+# at one distance (p = 0.23 alone); the arm's kinematics on an exact arm moved it 0.5-1.2.
+DROP_SHIFT = 2.0
 # Learning stops when no level changes by more than this fraction in an iteration.
 LEVEL_TOLERANCE = 0.003
 # Where the declared robot pose noise is zero (exact poses), learning starts from this floor.
@@ -91,11 +107,12 @@ class LearnedNoise:
     the robust optimum down-weighted. residuals: per frame the whitened measurement residual at
     the optimum under the learned levels. prior_distance: with a user prior, the squared
     Mahalanobis distance between it and the estimate from the data alone (fit_check).
-    With self-calibration (the corners or
-    the depths fit worse than MISFIT_SCALE times their noise under the declared model): theta,
-    theta_covariance (estimator.solve.self_calibration.NUISANCE order), consider_covariance (6, 6) that
-    T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
-    ratios and chi2_dof, with the adjusted model."""
+    With self-calibration (the corners or the depths fit worse than MISFIT_SCALE times their noise
+    under the declared model): theta and theta_covariance over theta_names (the groups kept after
+    the significance test; estimator.solve.self_calibration.NUISANCE names), groups_tried (every
+    group freed at first), consider_covariance (6, 6) that T_flange_cam's covariance gains from
+    theta's uncertainty, and ratios_after, chi2_dof_after: as ratios and chi2_dof, with the adjusted
+    model."""
 
     declared: NoiseLevels
     learned: NoiseLevels
@@ -110,18 +127,20 @@ class LearnedNoise:
     time_s: float = 0.0
     theta: np.ndarray | None = None
     theta_covariance: np.ndarray | None = None
+    theta_names: tuple[str, ...] = ()
+    groups_tried: tuple[str, ...] = ()
     consider_covariance: np.ndarray | None = None
     ratios_after: dict[str, float] | None = None
     chi2_dof_after: float | None = None
 
     @property
     def theta_sigma(self) -> np.ndarray | None:
-        """theta's 1-sigmas (NUISANCE order), None without self-calibration."""
+        """theta's 1-sigmas (theta_names), None without self-calibration."""
         return None if self.theta_covariance is None else np.sqrt(np.diag(self.theta_covariance))
 
     def adjusted(self, problem: CalibrationProblem) -> CalibrationProblem:
-        """The problem with the self-calibrated camera and board (unchanged without)."""
-        return problem if self.theta is None else adjusted_problem(problem, self.theta)
+        """The problem with the self-calibrated camera, board, depth and arm (unchanged without)."""
+        return problem if self.theta is None else adjusted_problem(problem, self.theta, self.theta_names)
 
     def to_dict(self) -> dict:
         return {
@@ -135,8 +154,14 @@ class LearnedNoise:
             "self_calibration": None
             if self.theta is None
             else {
-                name: {"value": float(v), "sigma": float(s)}
-                for name, v, s in zip(NUISANCE, self.theta, self.theta_sigma, strict=True)
+                "groups_tried": list(self.groups_tried),
+                "groups_kept": [
+                    g for g in NUISANCE_GROUPS if set(NUISANCE_GROUPS[g]) <= set(self.theta_names)
+                ],
+                "values": {
+                    name: {"value": float(v), "sigma": float(s)}
+                    for name, v, s in zip(self.theta_names, self.theta, self.theta_sigma, strict=True)
+                },
             },
         }
 
@@ -176,7 +201,7 @@ def _scaled(m: MarkerMeasurement, levels: NoiseLevels) -> MarkerMeasurement:
 
 
 def _row_groups(
-    objective: BatchObjective | SelfCalibrationObjective, problem: CalibrationProblem, self_calibrate: bool
+    objective: BatchObjective | SelfCalibrationObjective, problem: CalibrationProblem
 ) -> np.ndarray:
     """The group index (into GROUPS, -1 for the state's prior rows) of every residual row."""
     labels = [np.full(objective.n + (6 if objective.prior is not None else 0), -1)]
@@ -185,8 +210,8 @@ def _row_groups(
             labels.append(np.r_[np.zeros(m.pixel_rows, int), np.ones(len(m.whitening) - m.pixel_rows, int)])
         if objective.with_robot:
             labels.append(np.array([2, 2, 2, 3, 3, 3]))
-    if self_calibrate:
-        labels.append(np.full(len(NUISANCE), -1))
+    if isinstance(objective, SelfCalibrationObjective):
+        labels.append(np.full(len(objective.names), -1))
     return np.concatenate(labels)
 
 
@@ -205,12 +230,14 @@ def _objective(
     start: HandEyeState,
     P0: np.ndarray,
     options: MethodOptions,
-    self_calibrate: bool,
+    names: tuple[str, ...],
 ) -> BatchObjective | SelfCalibrationObjective:
+    """The batch objective, with the self-calibration of names (none: the plain batch)."""
+
     def make(p: CalibrationProblem) -> BatchObjective:
         return BatchObjective(p, start, P0, options.prior)
 
-    return SelfCalibrationObjective(problem, make) if self_calibrate else make(problem)
+    return SelfCalibrationObjective(problem, make, names) if names else make(problem)
 
 
 @dataclass
@@ -231,7 +258,7 @@ def _vce(
     P0: np.ndarray,
     levels: NoiseLevels,
     params: np.ndarray | None,
-    self_calibrate: bool,
+    names: tuple[str, ...],
 ) -> _Pass:
     declared = declared_levels(problem)
     robot_start = levels.robot if problem.robot_noise.is_zero else problem.robot_noise
@@ -239,12 +266,12 @@ def _vce(
     while iterations < MAX_ITERATIONS:
         iterations += 1
         scaled = scaled_problem(problem, levels)
-        objective = _objective(scaled, start, P0, options, self_calibrate)
+        objective = _objective(scaled, start, P0, options, names)
         x0 = np.zeros(objective.size) if params is None else params
         params, _ = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
         r, J = weighted_jacobian(objective, params, options.robust)
         hat = np.einsum("ij,ji->i", J, np.linalg.solve(J.T @ J, J.T))
-        groups = _row_groups(objective, scaled, self_calibrate)
+        groups = _row_groups(objective, scaled)
         squares = np.minimum(r**2, HUBER_SCALE**2) / _CLIPPED_SQUARE if options.robust else r**2
         factors = {}
         for g, name in enumerate(GROUPS):
@@ -265,17 +292,17 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     robot = problem.robot_noise if not problem.robot_noise.is_zero else ROBOT_FLOOR
     start = initial_state(problem, options).state
     P0 = initial_covariance(start, options)
-    first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, False)
+    first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, ())
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
-    final, theta, theta_covariance, consider = first, None, None, None
+    final, names, tried, theta_covariance, consider = first, (), (), None, None
     ratios_after, chi2_dof_after = None, None
-    if max(first.levels.pixel_scale, first.levels.depth_scale) > MISFIT_SCALE:
-        x0 = np.concatenate([first.params, np.zeros(len(NUISANCE))])
-        final = _vce(problem, options, start, P0, first.levels, x0, True)
-        theta = final.params[-len(NUISANCE) :]
-        theta_covariance, consider = _nuisance_uncertainty(problem, final, start, P0, options)
-        ratios_after, chi2_dof_after = _declared_fit(final.levels, declared, robot, final.factors)
-    adjusted = problem if theta is None else adjusted_problem(problem, theta)
+    if _misfit(problem, first.levels, robot):
+        tried = available_groups(problem)
+        final, names, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
+        if names:
+            ratios_after, chi2_dof_after = _declared_fit(final.levels, declared, robot, final.factors)
+    theta = final.params[len(final.params) - len(names) :] if names else None
+    adjusted = problem if theta is None else adjusted_problem(problem, theta, names)
     scaled = scaled_problem(adjusted, final.levels)
     objective = BatchObjective(scaled, start, P0, options.prior)
     params = final.params[: objective.size]
@@ -289,35 +316,130 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         declared_ratios,
         {name: red for name, (_, red) in first.factors.items()},
         chi2_dof,
-        first.iterations + (final.iterations if theta is not None else 0),
+        first.iterations + (final.iterations if final is not first else 0),
         start.plus(params[: objective.n]),
         outliers(scaled, frame_residuals) if options.robust else set(),
         frame_residuals,
         prior_distance,
         theta=theta,
         theta_covariance=theta_covariance,
+        theta_names=names,
+        groups_tried=tried,
         consider_covariance=consider,
         ratios_after=ratios_after,
         chi2_dof_after=chi2_dof_after,
     )
 
 
-def _nuisance_uncertainty(
-    problem: CalibrationProblem, final: _Pass, start: HandEyeState, P0: np.ndarray, options: MethodOptions
-) -> tuple[np.ndarray, np.ndarray]:
-    """theta's covariance (NUISANCE, NUISANCE) and the (6, 6) covariance T_flange_cam gains from theta being
-    estimated (its covariance with theta free minus with theta fixed: a method that solves the
+def _misfit(problem: CalibrationProblem, levels: NoiseLevels, robot: RobotPoseNoise) -> bool:
+    """Whether the declared model fits worse than MISFIT_SCALE times its noise: the corners or the
+    depths, or, when the problem knows the arm's kinematics (self-calibration can correct them),
+    the flange poses (robot: the level learning started from)."""
+    if max(levels.pixel_scale, levels.depth_scale) > MISFIT_SCALE:
+        return True
+    arm = max(
+        levels.robot.translation_sigma_m / robot.translation_sigma_m,
+        levels.robot.rotation_sigma_rad / robot.rotation_sigma_rad,
+    )
+    return problem.kinematics is not None and arm > MISFIT_SCALE
+
+
+def _self_calibrate(
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    start: HandEyeState,
+    P0: np.ndarray,
+    first: _Pass,
+    groups: tuple[str, ...],
+) -> tuple[_Pass, tuple[str, ...], np.ndarray | None, np.ndarray | None]:
+    """Self-calibration of groups, then again without the groups _droppable finds. Returns the
+    final pass, its theta names, theta's covariance and the consider covariance (the first pass
+    and no names when every group is dropped)."""
+    names = group_names(groups)
+    x0 = np.concatenate([first.params, np.zeros(len(names))])
+    full = _vce(problem, options, start, P0, first.levels, x0, names)
+    uncertainty = _nuisance_uncertainty(problem, full, names, start, P0, options)
+    dropped = _droppable(groups, names, full.params[-len(names) :], uncertainty)
+    if not dropped:
+        return full, names, uncertainty.theta, uncertainty.consider
+    kept = [g for g in groups if g not in dropped]
+    if not kept:
+        return first, (), None, None
+    theta = dict(zip(names, full.params[-len(names) :], strict=True))
+    names = group_names(kept)
+    x0 = np.concatenate([first.params, [theta[n] for n in names]])
+    final = _vce(problem, options, start, P0, full.levels, x0, names)
+    uncertainty = _nuisance_uncertainty(problem, final, names, start, P0, options)
+    return final, names, uncertainty.theta, uncertainty.consider
+
+
+def _droppable(
+    groups: tuple[str, ...], names: tuple[str, ...], theta: np.ndarray, uncertainty: _NuisanceUncertainty
+) -> list[str]:
+    """The groups to fix at the declared model: added least significant first while each alone and
+    all together stay insignificant (their chi-square with their covariance, GROUP_SIGNIFICANCE;
+    alone too, so that the kinematics' 24 degrees of freedom do not hide a distortion) and fixing
+    them moves the mount by less than DROP_SHIFT sigmas of its covariance with them fixed (a depth
+    bias the print scale could absorb is insignificant alone, yet fixing it moves the mount, and its
+    covariance would no longer say so)."""
+    index = {n: i for i, n in enumerate(names)}
+    rows_of = {g: [index[n] for n in NUISANCE_GROUPS[g]] for g in groups}
+
+    def statistic(rows: list[int]) -> float:
+        C = uncertainty.theta[np.ix_(rows, rows)]
+        return float(theta[rows] @ np.linalg.solve(C, theta[rows]))
+
+    alone = {g: chi2.sf(statistic(rows_of[g]), len(rows_of[g])) for g in groups}
+    dropped: list[str] = []
+    for g in sorted(groups, key=lambda g: -alone[g]):
+        rows = [r for d in [*dropped, g] for r in rows_of[d]]
+        if alone[g] < GROUP_SIGNIFICANCE or chi2.sf(statistic(rows), len(rows)) < GROUP_SIGNIFICANCE:
+            continue
+        C, cross = uncertainty.theta[np.ix_(rows, rows)], uncertainty.mount_theta[:, rows]
+        shift = cross @ np.linalg.solve(C, theta[rows])
+        fixed = uncertainty.mount - cross @ np.linalg.solve(C, cross.T)
+        if shift @ np.linalg.solve(fixed, shift) > DROP_SHIFT**2:
+            continue
+        dropped.append(g)
+    return dropped
+
+
+@dataclass
+class _NuisanceUncertainty:
+    """At a self-calibrated optimum: theta's covariance (p, p), the mount's (6, 6) and their
+    cross-covariance (6, p) (the mount in estimator.geometry.lie's local perturbation), and consider
+    (6, 6): what the mount's covariance gains from theta being estimated (a method that solves the
     adjusted problem with theta fixed adds it)."""
+
+    theta: np.ndarray
+    mount: np.ndarray
+    mount_theta: np.ndarray
+    consider: np.ndarray
+
+
+def _nuisance_uncertainty(
+    problem: CalibrationProblem,
+    final: _Pass,
+    names: tuple[str, ...],
+    start: HandEyeState,
+    P0: np.ndarray,
+    options: MethodOptions,
+) -> _NuisanceUncertainty:
+    """The covariances at final's optimum (the inverse of the normal matrix; with theta fixed, its
+    state block without theta's rows and columns)."""
     scaled = scaled_problem(problem, final.levels)
-    objective = _objective(scaled, start, P0, options, True)
+    objective = _objective(scaled, start, P0, options, names)
     _, J = weighted_jacobian(objective, final.params, options.robust)
     N = J.T @ J
-    p = len(NUISANCE)
+    p = len(names)
     free = np.linalg.inv(N)
     fixed = np.linalg.inv(N[:-p, :-p])
     to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
     extra = to_local @ (free[:6, :6] - fixed[:6, :6]) @ to_local.T
-    return free[-p:, -p:], 0.5 * (extra + extra.T)
+    mount = to_local @ free[:6, :6] @ to_local.T
+    return _NuisanceUncertainty(
+        free[-p:, -p:], 0.5 * (mount + mount.T), to_local @ free[:6, -p:], 0.5 * (extra + extra.T)
+    )
 
 
 def _prior_distance(

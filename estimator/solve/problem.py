@@ -11,16 +11,20 @@ whitened residuals W @ (measured - predicted), which are N(0, I) at the truth.
 
 The reported flange poses are measurements too (errors in variables): the true
 pose is pose_plus(reported, delta), delta ~ N(0, RobotPoseNoise.covariance()),
-in the convention of estimator.geometry.lie.
+in the convention of estimator.geometry.lie. Where the dataset names the arm and records its
+joints (ReportedArm), each frame keeps its joints and the problem the nominal kinematics the
+reported poses were computed with, so self-calibration can correct that model (its errors are the
+same from view to view, not white).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.kinematics import ROBOTS, URKinematics
 from estimator.io.dataset import Dataset, DatasetError
 from estimator.observe.observations import FrameObservations
 from estimator.targets.board import BoardDefinition
@@ -61,6 +65,28 @@ class RobotPoseNoise:
         return self.translation_sigma_m == 0.0 and self.rotation_sigma_rad == 0.0
 
 
+@dataclass(frozen=True)
+class ReportedArm:
+    """The arm behind the reported flange poses: its nominal kinematics and each frame's reported
+    joints (6,), radians, by frame index."""
+
+    kinematics: URKinematics
+    joints: dict[int, np.ndarray]
+
+
+def dataset_arm(dataset: Dataset) -> ReportedArm | None:
+    """The dataset's arm: its model (dataset.json 'robot_model', or a simulation's scenario robot)
+    and the joints of frames.csv; None when the model is not named or not known, or the poses are
+    the controller's TCP rather than the flange (kinematics to tool0 then miss the TCP offset)."""
+    meta = dataset.metadata
+    name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
+    if name not in ROBOTS or meta.get("pose_frame", "flange") != "flange":
+        return None
+    return ReportedArm(
+        ROBOTS[name], {i: np.asarray(row["joints"], float) for i, row in enumerate(dataset.rows)}
+    )
+
+
 def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
     """The dataset's robot pose noise (dataset.json 'robot_pose_noise'), else RobotPoseNoise()."""
     spec = dataset.metadata.get("robot_pose_noise")
@@ -96,11 +122,13 @@ class MarkerMeasurement:
 
 @dataclass
 class FrameMeasurements:
-    """The usable markers of one frame. T_base_flange: (4, 4) as the robot reported it."""
+    """The usable markers of one frame. T_base_flange: (4, 4) as the robot reported it. joints:
+    (6,) the reported joint angles (radians) it was computed from, when known."""
 
     frame: int
     T_base_flange: np.ndarray
     markers: list[MarkerMeasurement]
+    joints: np.ndarray | None = None
 
 
 @dataclass
@@ -111,7 +139,11 @@ class CalibrationProblem:
     the measured depth, measured = exp(s) (z + o) for a true depth z (self-calibration sets it;
     none by default). board_bend_m: (bx, by) sag of the board out of its plane, corner z +=
     bx (1 - u^2) + by (1 - v^2), u = 2 x / width, v = 2 y / height (board frame, size_m; none by
-    default)."""
+    default). depth_tilt: (tx, ty) the depth's error that grows across the image, measured +=
+    exp(s) (tx x + ty y) for a point (x, y, z) in the camera frame (a depth-to-colour
+    registration turned by about (ty, -tx) radians about the camera's x and y; none by
+    default). kinematics: the nominal model the reported poses were computed with (every
+    frame then has its joints), or None."""
 
     intrinsics: CameraIntrinsics
     board: BoardDefinition
@@ -121,6 +153,8 @@ class CalibrationProblem:
     rejected: list[str] = field(default_factory=list)
     depth_bias: tuple[float, float] = (0.0, 0.0)
     board_bend_m: tuple[float, float] = (0.0, 0.0)
+    depth_tilt: tuple[float, float] = (0.0, 0.0)
+    kinematics: URKinematics | None = None
 
     @property
     def observation_count(self) -> int:
@@ -161,10 +195,13 @@ def build_problem(
     intrinsics: CameraIntrinsics,
     robot_noise: RobotPoseNoise | None = None,
     use_depth: bool = True,
+    arm: ReportedArm | None = None,
 ) -> CalibrationProblem:
     """Validate observations and turn them into whitened measurements.
 
-    Frames with a problem or without markers are left out (listed in ``rejected``).
+    Frames with a problem or without markers are left out (listed in ``rejected``). With arm, the
+    frames keep their joints and the problem the arm's kinematics (unless a frame's joints are
+    missing or not finite).
     Raises CalibrationInputError for NaNs, markers that are not on the board, or
     fewer than MIN_FRAMES usable frames.
     """
@@ -189,8 +226,20 @@ def build_problem(
             + (f" ({'; '.join(rejected[:3])})" if rejected else "")
         )
     marker_ids = sorted({m.marker_id for f in frames for m in f.markers})
+    kinematics = None
+    if arm is not None:
+        joints = [arm.joints.get(f.frame) for f in frames]
+        if all(q is not None and q.shape == (6,) and np.all(np.isfinite(q)) for q in joints):
+            frames = [replace(f, joints=q) for f, q in zip(frames, joints, strict=True)]
+            kinematics = arm.kinematics
     return CalibrationProblem(
-        intrinsics, board, frames, robot_noise or RobotPoseNoise(), marker_ids, rejected
+        intrinsics,
+        board,
+        frames,
+        robot_noise or RobotPoseNoise(),
+        marker_ids,
+        rejected,
+        kinematics=kinematics,
     )
 
 

@@ -9,29 +9,46 @@ fractions: corners scaled by exp(theta) about the board frame's origin), the dep
 (CalibrationProblem.depth_bias: measured depth = exp(depth_scale) (z + depth_offset_m), z the
 true depth) and the board's sag out of its plane (CalibrationProblem.board_bend_m: a sheet on
 foam sags by a millimetre; unmodelled, self-calibration bent the focal length and the
-distortion instead). Each has a Gaussian prior (PRIOR_SIGMA: factory intrinsics are a few tenths of a
-percent and a few pixels off, a print a few tenths of a percent, a stereo camera's depth a
-percent or two and a few millimetres, a sag 2 mm), so theta stays determined when the views do not separate
-it from the mount. From views at one distance a print scale and a depth scale look alike (either
-explains a board that looks nearer in the image than in the depth): the priors then share the
-difference out, and the covariance of T_flange_cam carries what that leaves unknown; views at two
-distances separate them. The batch objective gains theta as parameters (their Jacobian analytic,
-from predict_frame) and its prior rows; the noise learning runs on it when the declared model
-fits badly, and every method then solves the adjusted problem.
+distortion instead) and the depth's tilt (CalibrationProblem.depth_tilt: a depth-to-colour
+registration turned by a tenth of a degree tilts every depth by as much; unmodelled, it turned the
+mount by 0.1 deg). Each has a Gaussian prior (PRIOR_SIGMA: factory intrinsics are a few tenths of
+a percent and a few pixels off, a print a few tenths of a percent, a stereo camera's depth a
+percent or two and a few millimetres, a sag 2 mm, a registration a few tenths of a degree), so
+theta stays determined when the views do not separate it from the mount. From views at one
+distance a print scale and a depth scale look alike (either explains a board that looks nearer in
+the image than in the depth): the priors then share the difference out, and the covariance of
+T_flange_cam carries what that leaves unknown; views at two distances separate them.
+
+Where the problem knows the arm (its nominal kinematics and each frame's joints), the arm's
+kinematic model joins theta (KINEMATIC_NUISANCE: every joint's zero offset, d, a and twist
+alpha, corrections to UR's nominal DH table; priors from UR calibration files): a real arm's
+nominal-model pose error is the same from view to view, which white pose noise does not describe
+(its estimate then was 5x too confident). Corrections that only move the base or the tool (joint
+1's, joint 6's) the board pose or the mount absorb; their priors then carry into the mount's
+covariance, which is measured against the true flange.
+
+theta covers the names given (a subset of NUISANCE, in its order; NUISANCE_GROUPS names the
+groups the noise learning frees or fixes together). The batch objective gains theta as parameters
+(their Jacobian analytic, from predict_frame, and the kinematics' by finite differences once) and
+its prior rows; the noise learning runs on it when the declared model fits badly, and every
+method then solves the adjusted problem.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
 
+from estimator.geometry.kinematics import URKinematics, forward
+from estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
 from estimator.solve.batch import BatchObjective
 from estimator.solve.measurement_model import predict_frame
 from estimator.solve.problem import CalibrationProblem
 
-NUISANCE = (
+# The camera, board and depth corrections, in the order of predict_frame's J_camera columns.
+CAMERA_NUISANCE = (
     "fx_px",
     "fy_px",
     "cx_px",
@@ -44,8 +61,24 @@ NUISANCE = (
     "depth_offset_m",
     "board_bend_x_m",
     "board_bend_y_m",
+    "depth_tilt_x",
+    "depth_tilt_y",
 )
-# Prior sigmas: focal lengths as a fraction of the declared one, the rest as they are.
+_DH = ("zero_rad", "d_m", "a_m", "alpha_rad")
+KINEMATIC_NUISANCE = tuple(f"joint{j}_{kind}" for kind in _DH for j in range(1, 7))
+NUISANCE = CAMERA_NUISANCE + KINEMATIC_NUISANCE
+NUISANCE_GROUPS = {
+    "intrinsics": ("fx_px", "fy_px", "cx_px", "cy_px"),
+    "distortion": ("k1", "k2"),
+    "board_scale": ("board_scale_x", "board_scale_y"),
+    "depth_bias": ("depth_scale", "depth_offset_m"),
+    "board_bend": ("board_bend_x_m", "board_bend_y_m"),
+    "depth_tilt": ("depth_tilt_x", "depth_tilt_y"),
+    "kinematics": KINEMATIC_NUISANCE,
+}
+# Prior sigmas: focal lengths as a fraction of the declared one, the rest as they are. The arm's:
+# UR calibration files show zero offsets of 0.006-0.07 deg, a and d deltas of 0.02-0.9 mm and
+# twist deltas of 0.02-0.4 deg against the nominal table.
 FOCAL_PRIOR_FRACTION = 0.05
 PRIOR_SIGMA = {
     "cx_px": 20.0,
@@ -58,51 +91,126 @@ PRIOR_SIGMA = {
     "depth_offset_m": 0.005,
     "board_bend_x_m": 0.002,
     "board_bend_y_m": 0.002,
+    "depth_tilt_x": 0.005,
+    "depth_tilt_y": 0.005,
+    **{f"joint{j}_zero_rad": float(np.radians(0.1)) for j in range(1, 7)},
+    **{f"joint{j}_{kind}": 0.0005 for kind in ("d_m", "a_m") for j in range(1, 7)},
+    **{f"joint{j}_alpha_rad": float(np.radians(0.1)) for j in range(1, 7)},
 }
+# Finite-difference step of the kinematic Jacobian (radians or metres).
+_KINEMATIC_STEP = 1e-7
 
 
-def prior_sigma(problem: CalibrationProblem) -> np.ndarray:
-    """(len(NUISANCE),) prior sigmas of theta for this problem's camera."""
+def available_groups(problem: CalibrationProblem) -> tuple[str, ...]:
+    """The NUISANCE_GROUPS this problem can estimate: the arm's kinematics only when it knows them."""
+    return tuple(g for g in NUISANCE_GROUPS if g != "kinematics" or problem.kinematics is not None)
+
+
+def group_names(groups: Sequence[str]) -> tuple[str, ...]:
+    """The NUISANCE names of these groups, in NUISANCE order."""
+    chosen = {n for g in groups for n in NUISANCE_GROUPS[g]}
+    return tuple(n for n in NUISANCE if n in chosen)
+
+
+def prior_sigma(problem: CalibrationProblem, names: Sequence[str] = CAMERA_NUISANCE) -> np.ndarray:
+    """(len(names),) prior sigmas of theta for this problem's camera."""
     k = problem.intrinsics
     focal = {"fx_px": FOCAL_PRIOR_FRACTION * k.fx, "fy_px": FOCAL_PRIOR_FRACTION * k.fy}
-    return np.array([{**PRIOR_SIGMA, **focal}[name] for name in NUISANCE])
+    return np.array([{**PRIOR_SIGMA, **focal}[name] for name in names])
 
 
-def adjusted_problem(problem: CalibrationProblem, theta: np.ndarray) -> CalibrationProblem:
-    """The problem with the camera, the board, the depth bias and the board's bend corrected by
-    theta (NUISANCE order; the depth bias and the bend replaced: the declared problem has none)."""
+def adjusted_kinematics(kinematics: URKinematics, values: dict[str, float]) -> URKinematics:
+    """The DH table corrected by the KINEMATIC_NUISANCE values given (the others zero)."""
+
+    def corrected(table: tuple[float, ...], kind: str) -> tuple[float, ...]:
+        return tuple(v + values.get(f"joint{j + 1}_{kind}", 0.0) for j, v in enumerate(table))
+
+    return replace(
+        kinematics,
+        theta_offset=corrected(kinematics.theta_offset, "zero_rad"),
+        d=corrected(kinematics.d, "d_m"),
+        a=corrected(kinematics.a, "a_m"),
+        alpha=corrected(kinematics.alpha, "alpha_rad"),
+    )
+
+
+def adjusted_problem(
+    problem: CalibrationProblem, theta: np.ndarray, names: Sequence[str] = CAMERA_NUISANCE
+) -> CalibrationProblem:
+    """The problem with the camera, the board, the depth bias, the board's bend and the arm's
+    kinematics corrected by theta (values of names; the rest zero; the depth bias and the bend
+    replaced: the declared problem has none). Kinematic corrections move each reported flange pose
+    by what the corrected model computes from its joints minus what the nominal one does."""
+    t = {n: float(v) for n, v in zip(names, theta, strict=True)}
     k = problem.intrinsics
     dist = list(k.dist) + [0.0] * (5 - len(k.dist))
-    dist[0] += float(theta[4])
-    dist[1] += float(theta[5])
+    dist[0] += t.get("k1", 0.0)
+    dist[1] += t.get("k2", 0.0)
     intrinsics = replace(
         k,
-        fx=k.fx + float(theta[0]),
-        fy=k.fy + float(theta[1]),
-        cx=k.cx + float(theta[2]),
-        cy=k.cy + float(theta[3]),
+        fx=k.fx + t.get("fx_px", 0.0),
+        fy=k.fy + t.get("fy_px", 0.0),
+        cx=k.cx + t.get("cx_px", 0.0),
+        cy=k.cy + t.get("cy_px", 0.0),
         dist=tuple(dist),
     )
-    scale = np.array([np.exp(theta[6]), np.exp(theta[7]), 1.0])
-    frames = [
-        replace(f, markers=[replace(m, corners_board=m.corners_board * scale) for m in f.markers])
-        for f in problem.frames
-    ]
-    depth_bias = (float(theta[8]), float(theta[9]))
-    bend = (float(theta[10]), float(theta[11]))
-    return replace(problem, intrinsics=intrinsics, frames=frames, depth_bias=depth_bias, board_bend_m=bend)
+    scale = np.array([np.exp(t.get("board_scale_x", 0.0)), np.exp(t.get("board_scale_y", 0.0)), 1.0])
+    corrected = (
+        adjusted_kinematics(problem.kinematics, t)
+        if problem.kinematics is not None and any(n in t for n in KINEMATIC_NUISANCE)
+        else None
+    )
+    frames = []
+    for f in problem.frames:
+        markers = [replace(m, corners_board=m.corners_board * scale) for m in f.markers]
+        T = f.T_base_flange
+        if corrected is not None:
+            T = pose_plus(T, pose_minus(forward(corrected, f.joints), forward(problem.kinematics, f.joints)))
+        frames.append(replace(f, markers=markers, T_base_flange=T))
+    depth_bias = (t.get("depth_scale", 0.0), t.get("depth_offset_m", 0.0))
+    bend = (t.get("board_bend_x_m", 0.0), t.get("board_bend_y_m", 0.0))
+    tilt = (t.get("depth_tilt_x", 0.0), t.get("depth_tilt_y", 0.0))
+    return replace(
+        problem,
+        intrinsics=intrinsics,
+        frames=frames,
+        depth_bias=depth_bias,
+        board_bend_m=bend,
+        depth_tilt=tilt,
+    )
+
+
+def kinematic_jacobian(kinematics: URKinematics, joints: np.ndarray) -> np.ndarray:
+    """(6, 24) d(the flange pose's correction, estimator.geometry.lie perturbation) / d(the
+    KINEMATIC_NUISANCE values) at the nominal model, by central differences."""
+    T_nominal = forward(kinematics, joints)
+    G = np.empty((6, len(KINEMATIC_NUISANCE)))
+    for i, name in enumerate(KINEMATIC_NUISANCE):
+        ahead = forward(adjusted_kinematics(kinematics, {name: _KINEMATIC_STEP}), joints)
+        behind = forward(adjusted_kinematics(kinematics, {name: -_KINEMATIC_STEP}), joints)
+        G[:, i] = (pose_minus(ahead, T_nominal) - pose_minus(behind, T_nominal)) / (2 * _KINEMATIC_STEP)
+    return G
 
 
 class SelfCalibrationObjective:
-    """The batch objective over params = [BatchObjective's params, theta (NUISANCE)], with theta's
+    """The batch objective over params = [BatchObjective's params, theta (names)], with theta's
     prior rows last. base: the problem as declared (its whitening and robot noise as learned)."""
 
     def __init__(
-        self, base: CalibrationProblem, make: Callable[[CalibrationProblem], BatchObjective]
+        self,
+        base: CalibrationProblem,
+        make: Callable[[CalibrationProblem], BatchObjective],
+        names: Sequence[str] = CAMERA_NUISANCE,
     ) -> None:
-        self.base = base
-        self.make = make  # problem -> BatchObjective
-        self.sqrt_info = 1.0 / prior_sigma(base)
+        self.base, self.make, self.names = base, make, tuple(names)
+        self.sqrt_info = 1.0 / prior_sigma(base, self.names)
+        self.camera_columns = [CAMERA_NUISANCE.index(n) for n in self.names if n in CAMERA_NUISANCE]
+        kinematic = [KINEMATIC_NUISANCE.index(n) for n in self.names if n in KINEMATIC_NUISANCE]
+        self.kinematic = (
+            [kinematic_jacobian(base.kinematics, f.joints)[:, kinematic] for f in base.frames]
+            if kinematic
+            else None
+        )
         self.inner = make(base)
         self._key, self._inner_at = None, self.inner
         self.n = self.inner.n
@@ -111,12 +219,12 @@ class SelfCalibrationObjective:
 
     @property
     def size(self) -> int:
-        return self.inner.size + len(NUISANCE)
+        return self.inner.size + len(self.names)
 
     def _objective(self, theta: np.ndarray) -> BatchObjective:
         key = theta.tobytes()
         if key != self._key:
-            self._key, self._inner_at = key, self.make(adjusted_problem(self.base, theta))
+            self._key, self._inner_at = key, self.make(adjusted_problem(self.base, theta, self.names))
         return self._inner_at
 
     def residuals(self, params: np.ndarray) -> np.ndarray:
@@ -125,21 +233,36 @@ class SelfCalibrationObjective:
         return np.concatenate([inner, self.sqrt_info * theta])
 
     def jacobian(self, params: np.ndarray) -> np.ndarray:
-        """The batch Jacobian, theta's columns (analytic: predict_frame's camera Jacobian) and
-        theta's prior rows."""
+        """The batch Jacobian, theta's columns (analytic: predict_frame's camera Jacobian; the
+        kinematics' through the flange pose) and theta's prior rows."""
         x, theta = params[: self.inner.size], params[self.inner.size :]
         objective = self._objective(theta)
         state = objective.start.plus(x[: objective.n])
         blocks = [np.zeros((objective.n + (6 if objective.prior is not None else 0), len(theta)))]
+        camera = bool(self.camera_columns)
         for i, frame in enumerate(objective.problem.frames):
             delta = objective._delta(x, i)
-            pred = predict_frame(objective.problem, state, frame, delta, camera_jacobian=True)
-            blocks.append(pred.J_camera)
+            pred = predict_frame(objective.problem, state, frame, delta, camera_jacobian=camera)
+            columns = [pred.J_camera[:, self.camera_columns]] if camera else []
+            if self.kinematic is not None:
+                columns.append(
+                    pred.J_flange @ self._flange_step(i, frame.T_base_flange, delta) @ self.kinematic[i]
+                )
+            blocks.append(np.hstack(columns))
             if objective.with_robot:
                 blocks.append(np.zeros((6, len(theta))))
         top = np.hstack([objective.jacobian(x), np.concatenate(blocks)])
         bottom = np.hstack([np.zeros((len(theta), self.inner.size)), np.diag(self.sqrt_info)])
         return np.vstack([top, bottom])
+
+    def _flange_step(self, i: int, T_adjusted: np.ndarray, delta: np.ndarray | None) -> np.ndarray:
+        """(6, 6) d(local perturbation of frame i's flange pose, pose_plus(T_adjusted, delta)) / d(its
+        kinematic correction a, T_adjusted = pose_plus(reported, a))."""
+        a = pose_minus(T_adjusted, self.base.frames[i].T_base_flange)
+        step = np.eye(6)
+        rotation = so3_right_jacobian(a[3:])
+        step[3:, 3:] = rotation if delta is None else so3_exp(delta[3:]).T @ rotation
+        return step
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
         theta = params[self.inner.size :]

@@ -227,8 +227,8 @@ def render_inputs(case: Case, rng: np.random.Generator, seed: int, trial: int) -
     task = TrialTask(
         f"r{index:02d}-t{trial:04d}", case.name, index, trial, seed, RENDER, parameters, (), {}, base_dir
     )
-    observations, board, intrinsics, robot, X, T_base_board = _render_inputs(task, scenario, rng)
-    problem = build_problem(observations, board, intrinsics, robot)
+    observations, board, intrinsics, robot, arm, X, T_base_board = _render_inputs(task, scenario, rng)
+    problem = build_problem(observations, board, intrinsics, robot, arm=arm)
     return observations, problem, problem, X, T_base_board
 
 

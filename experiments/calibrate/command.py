@@ -22,6 +22,7 @@ from estimator.solve.problem import (
     CalibrationProblem,
     RobotPoseNoise,
     build_problem,
+    dataset_arm,
     dataset_robot_noise,
 )
 from experiments.calibrate.comparison import format_comparison
@@ -258,7 +259,9 @@ def calibrate_dataset(
         observations, source = cached_or_detected(dataset, quiet)
     if not settings.use_depth:
         observations = without_depth(observations)
-    problem = build_problem(observations, dataset.board, dataset.intrinsics, noise, settings.use_depth)
+    problem = build_problem(
+        observations, dataset.board, dataset.intrinsics, noise, settings.use_depth, dataset_arm(dataset)
+    )
     _note_ignored_options(settings)
     results = run_methods(
         settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s

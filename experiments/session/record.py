@@ -241,6 +241,7 @@ def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: Hardw
     extra = {
         "depth_noise": config.camera.depth_noise(cell.depth_scale_m).to_dict(),
         "robot_pose_noise": config.robot.pose_noise().to_dict(),
+        "robot_model": config.robot.model,
         "pose_frame": cell.pose_frame,
         "cell": cell.describe(),
         "cell_config": config.to_dict(),

@@ -34,7 +34,7 @@ from estimator.geometry.waypoints import (
 )
 from estimator.io.dataset import load_dataset
 from estimator.observe.observations import camera_points
-from estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
+from estimator.solve.problem import CalibrationInputError, build_problem, dataset_arm, dataset_robot_noise
 from experiments.sweep.config import SweepConfig, cell_scenario
 from experiments.sweep.parameters import MEASUREMENTS
 from experiments.sweep.rows import FLOAT_COLUMNS, SweepError, trial_id
@@ -189,11 +189,12 @@ def _measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator
     observations = synthetic_observations(board, intrinsics, X, T_base_board, flange_true, noise, rng)
     if scenario.noise.depth_bias.enabled:
         observations = _with_depth_bias(observations, flange_true, X, scenario, board)
-    return observations, board, intrinsics, robot, X, T_base_board
+    return observations, board, intrinsics, robot, None, X, T_base_board
 
 
 def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
-    """Render the trial into a dataset (temporary unless task.keep_dir), detect, and return the inputs."""
+    """Render the trial into a dataset (temporary unless task.keep_dir), detect, and return the inputs
+    (with the arm behind its poses: a measurement trial has none)."""
     from estimator.targets.qr import DetectorSettings
     from experiments.detection import detect_and_cache, overlay_writer
     from sim.simulate import SimulationError, simulate
@@ -230,7 +231,8 @@ def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> 
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     truth, robot = dataset.ground_truth, dataset_robot_noise(dataset)
-    return observations, dataset.board, dataset.intrinsics, robot, truth.T_flange_cam, truth.T_base_board
+    arm = dataset_arm(dataset)
+    return observations, dataset.board, dataset.intrinsics, robot, arm, truth.T_flange_cam, truth.T_base_board
 
 
 def _failed(base: dict, method: str, failure: str, crb: tuple[float, float], time_s: float) -> dict:
@@ -268,8 +270,8 @@ def run_trial(task: TrialTask) -> list[dict]:
     start = time.perf_counter()
     try:
         make = _measurement_inputs if task.fidelity == MEASUREMENTS else _render_inputs
-        observations, board, intrinsics, robot, X, T_base_board = make(task, scenario, rng)
-        problem = build_problem(observations, board, intrinsics, robot)
+        observations, board, intrinsics, robot, arm, X, T_base_board = make(task, scenario, rng)
+        problem = build_problem(observations, board, intrinsics, robot, arm=arm)
     except (CalibrationInputError, SweepError) as exc:
         elapsed = time.perf_counter() - start
         return [_failed(base, m, str(exc), no_crb, elapsed) for m in task.methods]

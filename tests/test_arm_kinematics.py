@@ -1,0 +1,140 @@
+"""Self-calibration of the arm's kinematics: an arm off UR's nominal DH table, its reported flange
+poses the nominal kinematics of its joints (as a UR controller without its calibration reports
+them), observed at the true flange poses (measurement level, no rendering)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from estimator.geometry.kinematics import IK_RESTARTS, UR5, URKinematics, forward, solve_ik
+from estimator.geometry.lie import pose_minus, pose_plus
+from estimator.geometry.transforms import pose_error
+from estimator.geometry.waypoints import rotation_rich_waypoints
+from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from estimator.solve.batch import BatchObjective
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.filters import initial_covariance
+from estimator.solve.initialise import initial_state
+from estimator.solve.methods import run_method
+from estimator.solve.problem import ReportedArm, RobotPoseNoise, build_problem
+from estimator.solve.self_calibration import KINEMATIC_NUISANCE, SelfCalibrationObjective, adjusted_problem
+from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
+
+ROBOT = RobotPoseNoise()
+
+
+def _joints(T_base_flange: np.ndarray) -> np.ndarray | None:
+    """Nominal IK from the simulator's restarts, None when the view is out of reach."""
+    for seed in IK_RESTARTS:
+        result = solve_ik(UR5, T_base_flange, seed)
+        if result.converged:
+            return result.q
+    return None
+
+
+def _true_arm(rng: np.random.Generator, scale: float) -> URKinematics:
+    """UR5 with DH errors of the realistic scenario's size times scale (0.08 deg, 0.3 mm, 0.08 deg)."""
+
+    def drawn(values: tuple[float, ...], sigma: float) -> tuple[float, ...]:
+        return tuple(float(v) for v in np.asarray(values) + scale * sigma * rng.standard_normal(6))
+
+    angle = np.radians(0.08)
+    return replace(
+        UR5,
+        theta_offset=drawn(UR5.theta_offset, angle),
+        d=drawn(UR5.d, 3e-4),
+        a=drawn(UR5.a, 3e-4),
+        alpha=drawn(UR5.alpha, angle),
+    )
+
+
+def arm_scene(rng: np.random.Generator, scale: float = 1.0, views: int | None = None):
+    """(observations, arm, X): the default views nominal IK reaches (the first views of them),
+    seen from the true arm's flange poses; each frame reports the nominal kinematics of its joints
+    plus the robot noise."""
+    X = random_mount(rng)
+    targets = [
+        w.T_base_flange for w in rotation_rich_waypoints(T_BASE_BOARD, X, SCENARIO.trajectory.distance_m)
+    ]
+    joints = [q for q in map(_joints, targets) if q is not None][:views]
+    true_arm = _true_arm(rng, scale)
+    observations = synthetic_observations(
+        BOARD, INTRINSICS, X, T_BASE_BOARD, [forward(true_arm, q) for q in joints], SyntheticNoise(), rng
+    )
+    reported = []
+    for obs, q in zip(observations, joints, strict=True):
+        delta = np.r_[rng.normal(0, ROBOT.translation_sigma_m, 3), rng.normal(0, ROBOT.rotation_sigma_rad, 3)]
+        reported.append(replace(obs, T_base_flange=pose_plus(forward(UR5, q), delta)))
+    return reported, ReportedArm(UR5, {o.frame: q for o, q in zip(reported, joints, strict=True)}), X
+
+
+def test_kinematic_columns_match_finite_differences() -> None:
+    """The self-calibration Jacobian's kinematic columns against central differences of its
+    residuals, at a theta away from zero and flange perturbations away from zero (the columns
+    use the nominal model's Jacobian, so they agree to the size of theta's second order)."""
+    rng = np.random.default_rng(2000)
+    observations, arm, _ = arm_scene(rng, views=5)
+    problem = build_problem(observations, BOARD, INTRINSICS, ROBOT, arm=arm)
+    options = MethodOptions()
+    start = initial_state(problem, options).state
+    P0 = initial_covariance(start, options)
+    names = ("fx_px", *KINEMATIC_NUISANCE)
+    objective = SelfCalibrationObjective(problem, lambda p: BatchObjective(p, start, P0, None), names)
+    inner = objective.inner.size
+    params = np.r_[rng.normal(0, 1e-4, inner), 0.5, rng.normal(0, 1e-4, len(KINEMATIC_NUISANCE))]
+    J = objective.jacobian(params)
+    step = 1e-6
+    for k in range(inner + 1, objective.size):
+        e = np.zeros(objective.size)
+        e[k] = step
+        fd = (objective.residuals(params + e) - objective.residuals(params - e)) / (2 * step)
+        if np.linalg.norm(fd) == 0.0:
+            assert np.abs(J[:, k]).max() == 0.0
+            continue
+        error = np.linalg.norm(J[:, k] - fd) / np.linalg.norm(fd)
+        assert error < 2e-3, (names[k - inner], error)
+
+
+def test_adjusted_problem_moves_the_flange_poses_to_the_corrected_kinematics() -> None:
+    rng = np.random.default_rng(2100)
+    observations, arm, _ = arm_scene(rng, views=3)
+    problem = build_problem(observations, BOARD, INTRINSICS, ROBOT, arm=arm)
+    theta = rng.normal(0, 1e-3, len(KINEMATIC_NUISANCE))
+    adjusted = adjusted_problem(problem, theta, KINEMATIC_NUISANCE)
+    corrected = replace(
+        UR5,
+        theta_offset=tuple(np.add(UR5.theta_offset, theta[0:6])),
+        d=tuple(np.add(UR5.d, theta[6:12])),
+        a=tuple(np.add(UR5.a, theta[12:18])),
+        alpha=tuple(np.add(UR5.alpha, theta[18:24])),
+    )
+    for f, a in zip(problem.frames, adjusted.frames, strict=True):
+        expected = pose_minus(forward(corrected, f.joints), forward(UR5, f.joints))
+        np.testing.assert_allclose(pose_minus(a.T_base_flange, f.T_base_flange), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [2200, 2202])
+def test_an_arm_off_its_nominal_kinematics_is_calibrated_and_named(seed: int) -> None:
+    """DH errors of the realistic scenario's size: with the joints known the kinematics are
+    self-calibrated, the mount lands several times nearer the truth than with white pose noise
+    alone (0.89 against 2.33 mm and 0.62 against 4.41 mm on these seeds), its NEES stays honest
+    (9.5 and 2.7; without: 38 and 25) and a warning names the arm's kinematics. (At twice that
+    size, beyond the priors, NEES was 7-24 on six seeds.)"""
+    rng = np.random.default_rng(seed)
+    observations, arm, X = arm_scene(rng)
+    with_arm = run_method(
+        "ekf", build_problem(observations, BOARD, INTRINSICS, ROBOT, arm=arm), MethodOptions(), observations
+    )
+    without = run_method(
+        "ekf", build_problem(observations, BOARD, INTRINSICS, ROBOT), MethodOptions(), observations
+    )
+    error, error_without = pose_error(with_arm.T_flange_cam, X)[0], pose_error(without.T_flange_cam, X)[0]
+    delta = pose_minus(with_arm.T_flange_cam, X)
+    nees = float(delta @ np.linalg.solve(with_arm.covariance, delta))
+    named = [w for w in with_arm.warnings if "kinematics differ from the nominal ur5 model" in w]
+    assert len(named) == 1, with_arm.warnings
+    assert error < 0.5 * error_without, (error, error_without)
+    assert nees < 15.0, nees
