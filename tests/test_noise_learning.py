@@ -219,8 +219,8 @@ def test_a_print_scale_and_a_depth_scale_are_told_apart_from_two_distances_only(
 def test_camera_jacobian_matches_finite_differences(map_model: str) -> None:
     """J_camera against central differences of the whitened prediction W h through
     adjusted_problem, at a theta away from zero (a depth bias and tilt included), with distortion (radial and
-    tangential), a depth scale in the state and a flange perturbation; landmarks have no board to
-    scale (their columns are zero)."""
+    tangential), a depth scale in the state and a flange perturbation, and J_marker_shift for
+    one marker's shift; landmarks have no board to scale or shift (their columns are zero)."""
     rng = np.random.default_rng(900)
     X = random_mount(rng)
     intrinsics = replace(INTRINSICS, dist=(-0.12, 0.05, 0.001, -0.002, 0.01))
@@ -243,8 +243,10 @@ def test_camera_jacobian_matches_finite_differences(map_model: str) -> None:
     )
     steps = np.array([1e-3] * 4 + [1e-6] * 10)
 
-    def whitened_prediction(t: np.ndarray, k: int, delta: np.ndarray) -> np.ndarray:
-        adjusted = adjusted_problem(problem, t)
+    def whitened_prediction(
+        t: np.ndarray, k: int, delta: np.ndarray, names: tuple[str, ...] = CAMERA_NUISANCE
+    ) -> np.ndarray:
+        adjusted = adjusted_problem(problem, t, names)
         frame = adjusted.frames[k]
         measured = np.concatenate([m.whitening @ m.measured for m in frame.markers])
         return measured - predict_frame(adjusted, state, frame, delta, jacobians=False).residual
@@ -265,6 +267,27 @@ def test_camera_jacobian_matches_finite_differences(map_model: str) -> None:
                 continue
             error = np.linalg.norm(J[:, i] - fd) / np.linalg.norm(fd)
             assert error < 1e-5, (k, name, error)
+        # A shift of one marker in the board's plane: J_marker_shift on that marker's rows.
+        J_shift = predict_frame(
+            adjusted, state, adjusted.frames[k], delta, camera_jacobian=True
+        ).J_marker_shift
+        marker = problem.frames[k].markers[1]
+        rows = slice(
+            sum(len(m.whitening) for m in problem.frames[k].markers[:1]),
+            sum(len(m.whitening) for m in problem.frames[k].markers[:2]),
+        )
+        for axis in range(2):
+            names = (*CAMERA_NUISANCE, f"marker{marker.marker_id}_{'xy'[axis]}_m")
+            fd = (
+                whitened_prediction(np.r_[theta, 1e-6], k, delta, names)
+                - whitened_prediction(np.r_[theta, -1e-6], k, delta, names)
+            ) / 2e-6
+            if map_model == "landmarks":
+                assert np.abs(fd).max() == 0.0 and np.abs(J_shift).max() == 0.0
+                continue
+            assert np.abs(np.delete(fd, np.arange(len(fd))[rows])).max() == 0.0  # other markers unmoved
+            error = np.linalg.norm(J_shift[rows, axis] - fd[rows]) / np.linalg.norm(fd[rows])
+            assert error < 1e-5, (k, axis, error)
 
 
 @pytest.mark.parametrize("use_depth", [True, False])

@@ -59,6 +59,8 @@ NOTEWORTHY = {
     "depth_tilt_x": 0.0005,
     "depth_tilt_y": 0.0005,
 }
+# A marker's self-calibrated shift is reported from this size.
+NOTEWORTHY_MARKER_SHIFT_M = 0.00005
 # The arm's corrected kinematics are reported when they move the flange poses by this much (RMS).
 NOTEWORTHY_FLANGE_MOVE_M = 0.0002
 NOTEWORTHY_FLANGE_TURN_RAD = float(np.radians(0.01))
@@ -285,6 +287,7 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
         )
     if KINEMATIC_NUISANCE[0] in t:
         findings += _kinematic_finding(problem, learned, patterns)
+    findings += _marker_shift_finding(problem, t, sigma)
     if not findings:
         return []
     misfit = ", ".join(
@@ -296,6 +299,28 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
         f"the declared model did not fit (the {misfit} their noise), so the camera, board, depth and "
         "arm were calibrated with the mount where the data showed them off (self-calibration; the "
         "mount's covariance includes their uncertainty): " + "; ".join(findings)
+    ]
+
+
+def _marker_shift_finding(problem: CalibrationProblem, t: dict, sigma: dict) -> list[str]:
+    """The marker the self-calibration moved farthest off its definition, when that is more than
+    SIGNIFICANT sigmas and NOTEWORTHY_MARKER_SHIFT_M."""
+    shifts = {
+        i: (
+            np.hypot(t[f"marker{i}_x_m"], t[f"marker{i}_y_m"]),
+            max(sigma[f"marker{i}_x_m"], sigma[f"marker{i}_y_m"]),
+        )
+        for i in problem.marker_ids
+        if f"marker{i}_x_m" in t
+    }
+    found = {i: s for i, (s, sd) in shifts.items() if s > max(SIGNIFICANT * sd, NOTEWORTHY_MARKER_SHIFT_M)}
+    if not found:
+        return []
+    worst = max(found, key=found.get)
+    return [
+        f"{len(found)} marker(s) sit off their place in the board file, marker {worst} most "
+        f"({1e3 * found[worst]:.2f} mm, +-{1e3 * shifts[worst][1]:.2f} mm): measure the print, or print "
+        "the board again at a print shop"
     ]
 
 

@@ -84,7 +84,8 @@ class FramePrediction:
     depth; points_cam: (P, 3), all in marker order. J_camera (m, 14), with camera_jacobian: with
     respect to fx, fy, cx, cy, k1, k2 (added to the distortion), the board's scale along its x
     and y, the depth bias's log scale and offset, the board's bend along x and y and the depth's
-    tilt along x and y
+    tilt along x and y; J_marker_shift (m, 2), with it: with respect to a shift of each row's own
+    marker along the board's x and y (board mode; zero with landmarks)
     (estimator.solve.self_calibration.CAMERA_NUISANCE)."""
 
     residual: np.ndarray
@@ -94,6 +95,7 @@ class FramePrediction:
     depth_m: np.ndarray
     points_cam: np.ndarray
     J_camera: np.ndarray | None = None
+    J_marker_shift: np.ndarray | None = None
 
 
 def _projection(
@@ -195,11 +197,18 @@ def predict_frame(
             rows_flange.append(J_flange_points[sl, 2])
         J_state_rows.append(m.whitening @ np.concatenate(rows_state))
         J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
-    J_camera = None
+    J_camera = J_shift = None
     if camera_jacobian:
-        J_camera = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base, depth, p_cam)
+        J_camera, J_shift = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base, depth, p_cam)
     return FramePrediction(
-        residual, np.concatenate(J_state_rows), np.concatenate(J_flange_rows), pixels, depth, p_cam, J_camera
+        residual,
+        np.concatenate(J_state_rows),
+        np.concatenate(J_flange_rows),
+        pixels,
+        depth,
+        p_cam,
+        J_camera,
+        J_shift,
     )
 
 
@@ -218,13 +227,14 @@ def _camera_jacobian(
     d_meas_d_base: np.ndarray,
     depth: np.ndarray,
     p_cam: np.ndarray,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """(m, 14) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
-    depth log scale, depth offset, board bend x, board bend y, depth tilt x, depth tilt y); depth
-    (P,): the predicted depths; p_cam (P, 3): the points in the camera frame."""
+    depth log scale, depth offset, board bend x, board bend y, depth tilt x, depth tilt y), and
+    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y); depth (P,):
+    the predicted depths; p_cam (P, 3): the points in the camera frame."""
     k = problem.intrinsics
     P = len(xy)
-    J = np.zeros((P, 3, 14))  # per point: (u, v, depth) rows
+    J = np.zeros((P, 3, 16))  # per point: (u, v, depth) rows; the last two: the marker's shift
     J[:, 0, 0], J[:, 1, 1] = xy_d[:, 0], xy_d[:, 1]
     J[:, 0, 2] = J[:, 1, 3] = 1.0
     r2 = np.sum(xy * xy, axis=1)
@@ -242,12 +252,19 @@ def _camera_jacobian(
             d_bend = -2.0 * problem.board_bend_m[axis] * (1.0 - shapes[:, axis])
             J[:, :, 6 + axis] = np.einsum("pij,pj->pi", d_meas_d_base, d_base) + d_bend[:, None] * d_normal
             J[:, :, 10 + axis] = shapes[:, axis : axis + 1] * d_normal
+            # a shift moves the corners in the plane, and so along the bend
+            half = 0.5 * problem.board.size_m[axis]
+            d_shift_bend = -2.0 * problem.board_bend_m[axis] * corners_board[:, axis] / half**2
+            J[:, :, 14 + axis] = (
+                np.einsum("pij,j->pi", d_meas_d_base, R_B[:, axis]) + d_shift_bend[:, None] * d_normal
+            )
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
     rows = []
     for i, m in enumerate(markers):
         sl = slice(4 * i, 4 * i + 4)
-        block = [J[sl, :2].reshape(8, 14)] + ([J[sl, 2]] if m.depth_m is not None else [])
+        block = [J[sl, :2].reshape(8, 16)] + ([J[sl, 2]] if m.depth_m is not None else [])
         rows.append(m.whitening @ np.concatenate(block))
-    return np.concatenate(rows)
+    whitened = np.concatenate(rows)
+    return whitened[:, :14], whitened[:, 14:]

@@ -43,10 +43,10 @@ from estimator.solve.initialise import initial_state
 from estimator.solve.measurement_model import HandEyeState
 from estimator.solve.problem import CalibrationProblem, MarkerMeasurement, RobotPoseNoise
 from estimator.solve.self_calibration import (
-    NUISANCE_GROUPS,
     SelfCalibrationObjective,
     adjusted_problem,
     available_groups,
+    group_members,
     group_names,
 )
 
@@ -107,12 +107,12 @@ class LearnedNoise:
     the robust optimum down-weighted. residuals: per frame the whitened measurement residual at
     the optimum under the learned levels. prior_distance: with a user prior, the squared
     Mahalanobis distance between it and the estimate from the data alone (fit_check).
-    With self-calibration (the corners or the depths fit worse than MISFIT_SCALE times their noise
-    under the declared model): theta and theta_covariance over theta_names (the groups kept after
-    the significance test; estimator.solve.self_calibration.NUISANCE names), groups_tried (every
-    group freed at first), consider_covariance (6, 6) that T_flange_cam's covariance gains from
-    theta's uncertainty, and ratios_after, chi2_dof_after: as ratios and chi2_dof, with the adjusted
-    model."""
+    With self-calibration (the declared model fits worse than MISFIT_SCALE times its noise):
+    theta and theta_covariance over theta_names (the groups kept after the significance test),
+    groups_tried (every group freed at first) and groups_kept
+    (estimator.solve.self_calibration.NUISANCE_GROUPS), consider_covariance (6, 6) that
+    T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
+    ratios and chi2_dof, with the adjusted model."""
 
     declared: NoiseLevels
     learned: NoiseLevels
@@ -129,6 +129,7 @@ class LearnedNoise:
     theta_covariance: np.ndarray | None = None
     theta_names: tuple[str, ...] = ()
     groups_tried: tuple[str, ...] = ()
+    groups_kept: tuple[str, ...] = ()
     consider_covariance: np.ndarray | None = None
     ratios_after: dict[str, float] | None = None
     chi2_dof_after: float | None = None
@@ -155,9 +156,7 @@ class LearnedNoise:
             if self.theta is None
             else {
                 "groups_tried": list(self.groups_tried),
-                "groups_kept": [
-                    g for g in NUISANCE_GROUPS if set(NUISANCE_GROUPS[g]) <= set(self.theta_names)
-                ],
+                "groups_kept": list(self.groups_kept),
                 "values": {
                     name: {"value": float(v), "sigma": float(s)}
                     for name, v, s in zip(self.theta_names, self.theta, self.theta_sigma, strict=True)
@@ -294,13 +293,14 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     P0 = initial_covariance(start, options)
     first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, ())
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
-    final, names, tried, theta_covariance, consider = first, (), (), None, None
+    final, kept, tried, theta_covariance, consider = first, (), (), None, None
     ratios_after, chi2_dof_after = None, None
     if _misfit(problem, first.levels, robot):
         tried = available_groups(problem)
-        final, names, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
-        if names:
+        final, kept, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
+        if kept:
             ratios_after, chi2_dof_after = _declared_fit(final.levels, declared, robot, final.factors)
+    names = group_names(problem, kept)
     theta = final.params[len(final.params) - len(names) :] if names else None
     adjusted = problem if theta is None else adjusted_problem(problem, theta, names)
     scaled = scaled_problem(adjusted, final.levels)
@@ -325,6 +325,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         theta_covariance=theta_covariance,
         theta_names=names,
         groups_tried=tried,
+        groups_kept=kept,
         consider_covariance=consider,
         ratios_after=ratios_after,
         chi2_dof_after=chi2_dof_after,
@@ -353,37 +354,38 @@ def _self_calibrate(
     groups: tuple[str, ...],
 ) -> tuple[_Pass, tuple[str, ...], np.ndarray | None, np.ndarray | None]:
     """Self-calibration of groups, then again without the groups _droppable finds. Returns the
-    final pass, its theta names, theta's covariance and the consider covariance (the first pass
-    and no names when every group is dropped)."""
-    names = group_names(groups)
+    final pass, the groups kept, theta's covariance and the consider covariance (the first pass
+    and no groups when every group is dropped)."""
+    names = group_names(problem, groups)
     x0 = np.concatenate([first.params, np.zeros(len(names))])
     full = _vce(problem, options, start, P0, first.levels, x0, names)
     uncertainty = _nuisance_uncertainty(problem, full, names, start, P0, options)
-    dropped = _droppable(groups, names, full.params[-len(names) :], uncertainty)
+    index = {n: i for i, n in enumerate(names)}
+    rows_of = {g: [index[n] for n in group_members(problem, g)] for g in groups}
+    dropped = _droppable(rows_of, full.params[-len(names) :], uncertainty)
     if not dropped:
-        return full, names, uncertainty.theta, uncertainty.consider
-    kept = [g for g in groups if g not in dropped]
+        return full, groups, uncertainty.theta, uncertainty.consider
+    kept = tuple(g for g in groups if g not in dropped)
     if not kept:
         return first, (), None, None
     theta = dict(zip(names, full.params[-len(names) :], strict=True))
-    names = group_names(kept)
+    names = group_names(problem, kept)
     x0 = np.concatenate([first.params, [theta[n] for n in names]])
     final = _vce(problem, options, start, P0, full.levels, x0, names)
     uncertainty = _nuisance_uncertainty(problem, final, names, start, P0, options)
-    return final, names, uncertainty.theta, uncertainty.consider
+    return final, kept, uncertainty.theta, uncertainty.consider
 
 
 def _droppable(
-    groups: tuple[str, ...], names: tuple[str, ...], theta: np.ndarray, uncertainty: _NuisanceUncertainty
+    rows_of: dict[str, list[int]], theta: np.ndarray, uncertainty: _NuisanceUncertainty
 ) -> list[str]:
     """The groups to fix at the declared model: added least significant first while each alone and
     all together stay insignificant (their chi-square with their covariance, GROUP_SIGNIFICANCE;
     alone too, so that the kinematics' 24 degrees of freedom do not hide a distortion) and fixing
     them moves the mount by less than DROP_SHIFT sigmas of its covariance with them fixed (a depth
     bias the print scale could absorb is insignificant alone, yet fixing it moves the mount, and its
-    covariance would no longer say so)."""
-    index = {n: i for i, n in enumerate(names)}
-    rows_of = {g: [index[n] for n in NUISANCE_GROUPS[g]] for g in groups}
+    covariance would no longer say so). rows_of: each group's rows in theta."""
+    groups = tuple(rows_of)
 
     def statistic(rows: list[int]) -> float:
         C = uncertainty.theta[np.ix_(rows, rows)]

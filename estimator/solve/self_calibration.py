@@ -27,8 +27,12 @@ nominal-model pose error is the same from view to view, which white pose noise d
 1's, joint 6's) the board pose or the mount absorb; their priors then carry into the mount's
 covariance, which is measured against the true flange.
 
-theta covers the names given (a subset of NUISANCE, in its order; NUISANCE_GROUPS names the
-groups the noise learning frees or fixes together). The batch objective gains theta as parameters
+Each marker may also sit a little off its definition in the board's plane (MARKER_SHIFTS, prior
+0.1 mm): unmodelled, the 0.05 mm of an office print turned the mount by 0.04 deg once the depth's
+tilt was free.
+
+theta covers the names given (group_names: NUISANCE_GROUPS' order; the noise learning frees or
+fixes a group's names together). The batch objective gains theta as parameters
 (their Jacobian analytic, from predict_frame, and the kinematics' by finite differences once) and
 its prior rows; the noise learning runs on it when the declared model fits badly, and every
 method then solves the adjusted problem.
@@ -45,7 +49,7 @@ from estimator.geometry.kinematics import URKinematics, forward
 from estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
 from estimator.solve.batch import BatchObjective
 from estimator.solve.measurement_model import predict_frame
-from estimator.solve.problem import CalibrationProblem
+from estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 # The camera, board and depth corrections, in the order of predict_frame's J_camera columns.
 CAMERA_NUISANCE = (
@@ -67,6 +71,8 @@ CAMERA_NUISANCE = (
 _DH = ("zero_rad", "d_m", "a_m", "alpha_rad")
 KINEMATIC_NUISANCE = tuple(f"joint{j}_{kind}" for kind in _DH for j in range(1, 7))
 NUISANCE = CAMERA_NUISANCE + KINEMATIC_NUISANCE
+# Each board marker's shift in the board's plane: names marker{ID}_x_m, marker{ID}_y_m.
+MARKER_SHIFTS = "marker_shifts"
 NUISANCE_GROUPS = {
     "intrinsics": ("fx_px", "fy_px", "cx_px", "cy_px"),
     "distortion": ("k1", "k2"),
@@ -75,6 +81,7 @@ NUISANCE_GROUPS = {
     "board_bend": ("board_bend_x_m", "board_bend_y_m"),
     "depth_tilt": ("depth_tilt_x", "depth_tilt_y"),
     "kinematics": KINEMATIC_NUISANCE,
+    MARKER_SHIFTS: (),  # the problem's markers: group_members
 }
 # Prior sigmas: focal lengths as a fraction of the declared one, the rest as they are. The arm's:
 # UR calibration files show zero offsets of 0.006-0.07 deg, a and d deltas of 0.02-0.9 mm and
@@ -97,6 +104,8 @@ PRIOR_SIGMA = {
     **{f"joint{j}_{kind}": 0.0005 for kind in ("d_m", "a_m") for j in range(1, 7)},
     **{f"joint{j}_alpha_rad": float(np.radians(0.1)) for j in range(1, 7)},
 }
+# An office print places each marker within about a tenth of a millimetre of its definition.
+MARKER_SHIFT_PRIOR_M = 1e-4
 # Finite-difference step of the kinematic Jacobian (radians or metres).
 _KINEMATIC_STEP = 1e-7
 
@@ -106,17 +115,23 @@ def available_groups(problem: CalibrationProblem) -> tuple[str, ...]:
     return tuple(g for g in NUISANCE_GROUPS if g != "kinematics" or problem.kinematics is not None)
 
 
-def group_names(groups: Sequence[str]) -> tuple[str, ...]:
-    """The NUISANCE names of these groups, in NUISANCE order."""
-    chosen = {n for g in groups for n in NUISANCE_GROUPS[g]}
-    return tuple(n for n in NUISANCE if n in chosen)
+def group_members(problem: CalibrationProblem, group: str) -> tuple[str, ...]:
+    """The theta names of one group (the marker shifts: two for each of the problem's markers)."""
+    if group == MARKER_SHIFTS:
+        return tuple(f"marker{i}_{axis}_m" for i in problem.marker_ids for axis in "xy")
+    return NUISANCE_GROUPS[group]
+
+
+def group_names(problem: CalibrationProblem, groups: Sequence[str]) -> tuple[str, ...]:
+    """The theta names of these groups, in NUISANCE_GROUPS order."""
+    return tuple(n for g in NUISANCE_GROUPS if g in groups for n in group_members(problem, g))
 
 
 def prior_sigma(problem: CalibrationProblem, names: Sequence[str] = CAMERA_NUISANCE) -> np.ndarray:
     """(len(names),) prior sigmas of theta for this problem's camera."""
     k = problem.intrinsics
-    focal = {"fx_px": FOCAL_PRIOR_FRACTION * k.fx, "fy_px": FOCAL_PRIOR_FRACTION * k.fy}
-    return np.array([{**PRIOR_SIGMA, **focal}[name] for name in names])
+    known = {**PRIOR_SIGMA, "fx_px": FOCAL_PRIOR_FRACTION * k.fx, "fy_px": FOCAL_PRIOR_FRACTION * k.fy}
+    return np.array([known.get(name, MARKER_SHIFT_PRIOR_M) for name in names])
 
 
 def adjusted_kinematics(kinematics: URKinematics, values: dict[str, float]) -> URKinematics:
@@ -137,10 +152,11 @@ def adjusted_kinematics(kinematics: URKinematics, values: dict[str, float]) -> U
 def adjusted_problem(
     problem: CalibrationProblem, theta: np.ndarray, names: Sequence[str] = CAMERA_NUISANCE
 ) -> CalibrationProblem:
-    """The problem with the camera, the board, the depth bias, the board's bend and the arm's
-    kinematics corrected by theta (values of names; the rest zero; the depth bias and the bend
-    replaced: the declared problem has none). Kinematic corrections move each reported flange pose
-    by what the corrected model computes from its joints minus what the nominal one does."""
+    """The problem with the camera, the board (its scale, then each marker's shift), the depth
+    bias, the board's bend and the arm's kinematics corrected by theta (values of names; the rest
+    zero; the depth bias and the bend replaced: the declared problem has none). Kinematic
+    corrections move each reported flange pose by what the corrected model computes from its
+    joints minus what the nominal one does."""
     t = {n: float(v) for n, v in zip(names, theta, strict=True)}
     k = problem.intrinsics
     dist = list(k.dist) + [0.0] * (5 - len(k.dist))
@@ -162,7 +178,14 @@ def adjusted_problem(
     )
     frames = []
     for f in problem.frames:
-        markers = [replace(m, corners_board=m.corners_board * scale) for m in f.markers]
+        markers = [
+            replace(
+                m,
+                corners_board=m.corners_board * scale
+                + [t.get(f"marker{m.marker_id}_x_m", 0.0), t.get(f"marker{m.marker_id}_y_m", 0.0), 0.0],
+            )
+            for m in f.markers
+        ]
         T = f.T_base_flange
         if corrected is not None:
             T = pose_plus(T, pose_minus(forward(corrected, f.joints), forward(problem.kinematics, f.joints)))
@@ -205,6 +228,12 @@ class SelfCalibrationObjective:
         self.base, self.make, self.names = base, make, tuple(names)
         self.sqrt_info = 1.0 / prior_sigma(base, self.names)
         self.camera_columns = [CAMERA_NUISANCE.index(n) for n in self.names if n in CAMERA_NUISANCE]
+        shifts = [n for n in group_members(base, MARKER_SHIFTS) if n in self.names]
+        self.shift_columns = (
+            {i: (shifts.index(f"marker{i}_x_m"), shifts.index(f"marker{i}_y_m")) for i in base.marker_ids}
+            if shifts
+            else None
+        )
         kinematic = [KINEMATIC_NUISANCE.index(n) for n in self.names if n in KINEMATIC_NUISANCE]
         self.kinematic = (
             [kinematic_jacobian(base.kinematics, f.joints)[:, kinematic] for f in base.frames]
@@ -239,15 +268,17 @@ class SelfCalibrationObjective:
         objective = self._objective(theta)
         state = objective.start.plus(x[: objective.n])
         blocks = [np.zeros((objective.n + (6 if objective.prior is not None else 0), len(theta)))]
-        camera = bool(self.camera_columns)
+        camera = bool(self.camera_columns) or self.shift_columns is not None
         for i, frame in enumerate(objective.problem.frames):
             delta = objective._delta(x, i)
             pred = predict_frame(objective.problem, state, frame, delta, camera_jacobian=camera)
-            columns = [pred.J_camera[:, self.camera_columns]] if camera else []
+            columns = [pred.J_camera[:, self.camera_columns]] if self.camera_columns else []
             if self.kinematic is not None:
                 columns.append(
                     pred.J_flange @ self._flange_step(i, frame.T_base_flange, delta) @ self.kinematic[i]
                 )
+            if self.shift_columns is not None:
+                columns.append(self._shift_block(frame, pred.J_marker_shift))
             blocks.append(np.hstack(columns))
             if objective.with_robot:
                 blocks.append(np.zeros((6, len(theta))))
@@ -263,6 +294,16 @@ class SelfCalibrationObjective:
         rotation = so3_right_jacobian(a[3:])
         step[3:, 3:] = rotation if delta is None else so3_exp(delta[3:]).T @ rotation
         return step
+
+    def _shift_block(self, frame: FrameMeasurements, J_shift: np.ndarray) -> np.ndarray:
+        """(m, 2 per marker) the marker-shift columns: each marker's rows in its own two columns."""
+        block = np.zeros((len(J_shift), 2 * len(self.shift_columns)))
+        row = 0
+        for m in frame.markers:
+            rows = slice(row, row + len(m.whitening))
+            block[rows, list(self.shift_columns[m.marker_id])] = J_shift[rows]
+            row += len(m.whitening)
+        return block
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
         theta = params[self.inner.size :]
