@@ -25,7 +25,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import norm
 from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import pose_minus
@@ -43,9 +43,11 @@ from estimator.solve.initialise import initial_state
 from estimator.solve.measurement_model import HandEyeState
 from estimator.solve.problem import CalibrationProblem, MarkerMeasurement, RobotPoseNoise
 from estimator.solve.self_calibration import (
+    NuisanceUncertainty,
     SelfCalibrationObjective,
     adjusted_problem,
     available_groups,
+    droppable_groups,
     group_members,
     group_names,
 )
@@ -61,15 +63,6 @@ VCE_COST_TOLERANCE = 1e-7
 # of freedom above 2.25, estimator.solve.fit_check.BAD_FIT). White noise above the declared level
 # triggers it too; the priors then keep theta near zero, at the cost of the covariance it adds.
 MISFIT_SCALE = 1.5
-# Self-calibration first frees every group the problem can estimate (NUISANCE_GROUPS), then solves
-# again with the groups fixed whose corrections, together, do not differ from zero at this
-# significance (their chi-square with their covariance): each group freed costs accuracy (1.6x the
-# bound with all of them when only the depth was biased).
-GROUP_SIGNIFICANCE = 1e-3
-# ... unless fixing them moves the mount by more than this many of its sigmas with them fixed
-# (Mahalanobis): 10 for a print scale the views cannot tell from the depth's, 2.6 for a depth bias
-# at one distance (p = 0.23 alone); the arm's kinematics on an exact arm moved it 0.5-1.2.
-DROP_SHIFT = 2.0
 # Learning stops when no level changes by more than this fraction in an iteration.
 LEVEL_TOLERANCE = 0.003
 # Where the declared robot pose noise is zero (exact poses), learning starts from this floor.
@@ -353,7 +346,7 @@ def _self_calibrate(
     first: _Pass,
     groups: tuple[str, ...],
 ) -> tuple[_Pass, tuple[str, ...], np.ndarray | None, np.ndarray | None]:
-    """Self-calibration of groups, then again without the groups _droppable finds. Returns the
+    """Self-calibration of groups, then again without the groups droppable_groups finds. Returns the
     final pass, the groups kept, theta's covariance and the consider covariance (the first pass
     and no groups when every group is dropped)."""
     names = group_names(problem, groups)
@@ -362,7 +355,7 @@ def _self_calibrate(
     uncertainty = _nuisance_uncertainty(problem, full, names, start, P0, options)
     index = {n: i for i, n in enumerate(names)}
     rows_of = {g: [index[n] for n in group_members(problem, g)] for g in groups}
-    dropped = _droppable(rows_of, full.params[-len(names) :], uncertainty)
+    dropped = droppable_groups(rows_of, full.params[-len(names) :], uncertainty)
     if not dropped:
         return full, groups, uncertainty.theta, uncertainty.consider
     kept = tuple(g for g in groups if g not in dropped)
@@ -376,49 +369,6 @@ def _self_calibrate(
     return final, kept, uncertainty.theta, uncertainty.consider
 
 
-def _droppable(
-    rows_of: dict[str, list[int]], theta: np.ndarray, uncertainty: _NuisanceUncertainty
-) -> list[str]:
-    """The groups to fix at the declared model: added least significant first while each alone and
-    all together stay insignificant (their chi-square with their covariance, GROUP_SIGNIFICANCE;
-    alone too, so that the kinematics' 24 degrees of freedom do not hide a distortion) and fixing
-    them moves the mount by less than DROP_SHIFT sigmas of its covariance with them fixed (a depth
-    bias the print scale could absorb is insignificant alone, yet fixing it moves the mount, and its
-    covariance would no longer say so). rows_of: each group's rows in theta."""
-    groups = tuple(rows_of)
-
-    def statistic(rows: list[int]) -> float:
-        C = uncertainty.theta[np.ix_(rows, rows)]
-        return float(theta[rows] @ np.linalg.solve(C, theta[rows]))
-
-    alone = {g: chi2.sf(statistic(rows_of[g]), len(rows_of[g])) for g in groups}
-    dropped: list[str] = []
-    for g in sorted(groups, key=lambda g: -alone[g]):
-        rows = [r for d in [*dropped, g] for r in rows_of[d]]
-        if alone[g] < GROUP_SIGNIFICANCE or chi2.sf(statistic(rows), len(rows)) < GROUP_SIGNIFICANCE:
-            continue
-        C, cross = uncertainty.theta[np.ix_(rows, rows)], uncertainty.mount_theta[:, rows]
-        shift = cross @ np.linalg.solve(C, theta[rows])
-        fixed = uncertainty.mount - cross @ np.linalg.solve(C, cross.T)
-        if shift @ np.linalg.solve(fixed, shift) > DROP_SHIFT**2:
-            continue
-        dropped.append(g)
-    return dropped
-
-
-@dataclass
-class _NuisanceUncertainty:
-    """At a self-calibrated optimum: theta's covariance (p, p), the mount's (6, 6) and their
-    cross-covariance (6, p) (the mount in estimator.geometry.lie's local perturbation), and consider
-    (6, 6): what the mount's covariance gains from theta being estimated (a method that solves the
-    adjusted problem with theta fixed adds it)."""
-
-    theta: np.ndarray
-    mount: np.ndarray
-    mount_theta: np.ndarray
-    consider: np.ndarray
-
-
 def _nuisance_uncertainty(
     problem: CalibrationProblem,
     final: _Pass,
@@ -426,7 +376,7 @@ def _nuisance_uncertainty(
     start: HandEyeState,
     P0: np.ndarray,
     options: MethodOptions,
-) -> _NuisanceUncertainty:
+) -> NuisanceUncertainty:
     """The covariances at final's optimum (the inverse of the normal matrix; with theta fixed, its
     state block without theta's rows and columns)."""
     scaled = scaled_problem(problem, final.levels)
@@ -439,7 +389,7 @@ def _nuisance_uncertainty(
     to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
     extra = to_local @ (free[:6, :6] - fixed[:6, :6]) @ to_local.T
     mount = to_local @ free[:6, :6] @ to_local.T
-    return _NuisanceUncertainty(
+    return NuisanceUncertainty(
         free[-p:, -p:], 0.5 * (mount + mount.T), to_local @ free[:6, -p:], 0.5 * (extra + extra.T)
     )
 

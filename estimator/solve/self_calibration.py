@@ -41,9 +41,10 @@ method then solves the adjusted problem.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.stats import chi2
 
 from estimator.geometry.kinematics import URKinematics, forward
 from estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
@@ -106,6 +107,15 @@ PRIOR_SIGMA = {
 }
 # An office print places each marker within about a tenth of a millimetre of its definition.
 MARKER_SHIFT_PRIOR_M = 1e-4
+# Self-calibration first frees every group the problem can estimate (NUISANCE_GROUPS), then solves
+# again with the groups fixed whose corrections, together, do not differ from zero at this
+# significance (their chi-square with their covariance): each group freed costs accuracy (1.6x the
+# bound with all of them when only the depth was biased).
+GROUP_SIGNIFICANCE = 1e-3
+# ... unless fixing them moves the mount by more than this many of its sigmas with them fixed
+# (Mahalanobis): 10 for a print scale the views cannot tell from the depth's, 2.6 for a depth bias
+# at one distance (p = 0.23 alone); the arm's kinematics on an exact arm moved it 0.5-1.2.
+DROP_SHIFT = 2.0
 # Finite-difference step of the kinematic Jacobian (radians or metres).
 _KINEMATIC_STEP = 1e-7
 
@@ -213,6 +223,49 @@ def kinematic_jacobian(kinematics: URKinematics, joints: np.ndarray) -> np.ndarr
         behind = forward(adjusted_kinematics(kinematics, {name: -_KINEMATIC_STEP}), joints)
         G[:, i] = (pose_minus(ahead, T_nominal) - pose_minus(behind, T_nominal)) / (2 * _KINEMATIC_STEP)
     return G
+
+
+@dataclass
+class NuisanceUncertainty:
+    """At a self-calibrated optimum: theta's covariance (p, p), the mount's (6, 6) and their
+    cross-covariance (6, p) (the mount in estimator.geometry.lie's local perturbation), and consider
+    (6, 6): what the mount's covariance gains from theta being estimated (a method that solves the
+    adjusted problem with theta fixed adds it)."""
+
+    theta: np.ndarray
+    mount: np.ndarray
+    mount_theta: np.ndarray
+    consider: np.ndarray
+
+
+def droppable_groups(
+    rows_of: dict[str, list[int]], theta: np.ndarray, uncertainty: NuisanceUncertainty
+) -> list[str]:
+    """The groups to fix at the declared model: added least significant first while each alone and
+    all together stay insignificant (their chi-square with their covariance, GROUP_SIGNIFICANCE;
+    alone too, so that the kinematics' 24 degrees of freedom do not hide a distortion) and fixing
+    them moves the mount by less than DROP_SHIFT sigmas of its covariance with them fixed (a depth
+    bias the print scale could absorb is insignificant alone, yet fixing it moves the mount, and its
+    covariance would no longer say so). rows_of: each group's rows in theta."""
+    groups = tuple(rows_of)
+
+    def statistic(rows: list[int]) -> float:
+        C = uncertainty.theta[np.ix_(rows, rows)]
+        return float(theta[rows] @ np.linalg.solve(C, theta[rows]))
+
+    alone = {g: chi2.sf(statistic(rows_of[g]), len(rows_of[g])) for g in groups}
+    dropped: list[str] = []
+    for g in sorted(groups, key=lambda g: -alone[g]):
+        rows = [r for d in [*dropped, g] for r in rows_of[d]]
+        if alone[g] < GROUP_SIGNIFICANCE or chi2.sf(statistic(rows), len(rows)) < GROUP_SIGNIFICANCE:
+            continue
+        C, cross = uncertainty.theta[np.ix_(rows, rows)], uncertainty.mount_theta[:, rows]
+        shift = cross @ np.linalg.solve(C, theta[rows])
+        fixed = uncertainty.mount - cross @ np.linalg.solve(C, cross.T)
+        if shift @ np.linalg.solve(fixed, shift) > DROP_SHIFT**2:
+            continue
+        dropped.append(g)
+    return dropped
 
 
 class SelfCalibrationObjective:
