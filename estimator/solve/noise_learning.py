@@ -58,10 +58,10 @@ MAX_ITERATIONS = 30
 # Each pass's optimum to this relative cost change (the levels move by far more between passes).
 VCE_COST_TOLERANCE = 1e-7
 # The declared camera, board, depth (and arm) are replaced by self-calibration when the corners,
-# the depths (or, with the arm's kinematics known, the flange poses) fit worse than this many times
-# their noise (the learned level: a chi-square per degree
-# of freedom above 2.25, estimator.solve.fit_check.BAD_FIT). White noise above the declared level
-# triggers it too; the priors then keep theta near zero, at the cost of the covariance it adds.
+# the depths (or, with the arm's kinematics known, the flange poses) fit worse than this many
+# times their noise (the learned level: a chi-square per degree of freedom above 2.25,
+# estimator.solve.fit_check.BAD_FIT). White noise above the declared level triggers it too; the
+# significance test then fixes the groups it does not need.
 MISFIT_SCALE = 1.5
 # Learning stops when no level changes by more than this fraction in an iteration.
 LEVEL_TOLERANCE = 0.003
