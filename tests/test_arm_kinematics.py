@@ -5,6 +5,7 @@ them), observed at the true flange poses (measurement level, no rendering)."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,13 +14,14 @@ from estimator.geometry.kinematics import IK_RESTARTS, UR5, URKinematics, forwar
 from estimator.geometry.lie import pose_minus, pose_plus
 from estimator.geometry.transforms import pose_error
 from estimator.geometry.waypoints import rotation_rich_waypoints
+from estimator.io.dataset import Dataset
 from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 from estimator.solve.batch import BatchObjective
 from estimator.solve.calibration import MethodOptions
 from estimator.solve.filters import initial_covariance
 from estimator.solve.initialise import initial_state
 from estimator.solve.methods import run_method
-from estimator.solve.problem import ReportedArm, RobotPoseNoise, build_problem
+from estimator.solve.problem import ReportedArm, RobotPoseNoise, build_problem, dataset_arm
 from estimator.solve.self_calibration import KINEMATIC_NUISANCE, SelfCalibrationObjective, adjusted_problem
 from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
 
@@ -138,3 +140,24 @@ def test_an_arm_off_its_nominal_kinematics_is_calibrated_and_named(seed: int) ->
     assert len(named) == 1, with_arm.warnings
     assert error < 0.5 * error_without, (error, error_without)
     assert nees < 15.0, nees
+
+
+@pytest.mark.parametrize(
+    ("metadata", "expected"),
+    [
+        ({"robot_model": "ur5e"}, "ur5e"),
+        ({"simulation": {"scenario": {"robot": "ur5"}}}, "ur5"),
+        ({"robot_model": "ur5", "pose_frame": "tcp"}, None),  # the TCP's offset is not in the kinematics
+        ({"robot_model": "kuka"}, None),
+        ({}, None),
+    ],
+)
+def test_the_dataset_names_the_arm_its_poses_come_from(metadata: dict, expected: str | None) -> None:
+    rows = [{"joints": np.full(6, 0.1 * i)} for i in range(3)]
+    dataset = Dataset(Path("d"), metadata, INTRINSICS, BOARD, 0.001, rows, None)
+    arm = dataset_arm(dataset)
+    if expected is None:
+        assert arm is None
+        return
+    assert arm.kinematics.name == expected
+    assert sorted(arm.joints) == [0, 1, 2] and np.allclose(arm.joints[2], 0.2)
