@@ -1,8 +1,8 @@
-"""Self-calibration: the camera's intrinsics, its radial distortion, the board's print scale and
-the depth's scale and offset estimated with the mount, for when the model the dataset declares
-does not fit.
+"""Self-calibration: the camera, the board, the depth and the arm's kinematics estimated with the
+mount, for when the model the dataset declares does not fit.
 
-The nuisance parameters theta (NUISANCE) are corrections to what the problem declares:
+The nuisance parameters theta (CAMERA_NUISANCE, KINEMATIC_NUISANCE, the marker shifts) are
+corrections to what the problem declares:
 focal lengths and principal point (pixels), the radial distortion k1, k2 (added to the declared
 coefficients), the printed board's scale along its x and y (log scales, so about the
 fractions: corners scaled by exp(theta) about the board frame's origin), the depth bias
@@ -71,7 +71,6 @@ CAMERA_NUISANCE = (
 )
 _DH = ("zero_rad", "d_m", "a_m", "alpha_rad")
 KINEMATIC_NUISANCE = tuple(f"joint{j}_{kind}" for kind in _DH for j in range(1, 7))
-NUISANCE = CAMERA_NUISANCE + KINEMATIC_NUISANCE
 # Each board marker's shift in the board's plane: names marker{ID}_x_m, marker{ID}_y_m.
 MARKER_SHIFTS = "marker_shifts"
 NUISANCE_GROUPS = {
