@@ -10,6 +10,7 @@ from estimator.io.dataset import DatasetError
 from estimator.observe.observations import ObservationCacheError
 from estimator.solve.problem import CalibrationInputError
 from estimator.targets.board import BoardDefinitionError
+from experiments import arguments
 from experiments.regress import command as regress
 from experiments.session import record, teach
 from experiments.sweep import command as sweep
@@ -22,8 +23,7 @@ USER_ERRORS = (
     CalibrationInputError,
     FileExistsError,
     ValueError,
-    FileNotFoundError,
-    IsADirectoryError,
+    OSError,  # a file that cannot be read or written (missing, read-only or full file system)
 )
 
 
@@ -35,7 +35,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
         type=Path,
         help="scenario TOML file, or a name in models/scenarios/ (realistic); default: the ideal cell",
     )
-    p.add_argument("--seed", type=int, help="noise seed (default: the scenario's 'seed')")
+    p.add_argument("--seed", type=arguments.seed, help="noise seed (default: the scenario's 'seed')")
     p.add_argument("--force", action="store_true", help="replace --out if it exists")
     p.add_argument(
         "--preview", action="store_true", help="also write preview/overview.png and preview/contact_sheet.png"
@@ -57,13 +57,6 @@ def _add_detect(sub: argparse._SubParsersAction) -> None:
         help="decoding passes BACKEND@SCALE in order; back-ends zxing, pyzbar, opencv (default: %(default)s)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
-    return value
 
 
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
@@ -110,13 +103,13 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--robot-sigma-mm",
-        type=_non_negative,
+        type=arguments.non_negative,
         metavar="X",
         help="1-sigma of the reported flange position per base axis, mm (default: the dataset's)",
     )
     p.add_argument(
         "--robot-sigma-deg",
-        type=_non_negative,
+        type=arguments.non_negative,
         metavar="Y",
         help="1-sigma of the reported flange rotation per flange axis, degrees (default: the dataset's)",
     )
@@ -127,7 +120,8 @@ def _add_board(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("board", help="write a true-scale printable board (PNG or PDF)")
     p.add_argument("--out", required=True, type=Path, help="board.pdf or board.png")
     p.add_argument("--board", default="hec_8qr", help="board name in models/boards/ or a board JSON file")
-    p.add_argument("--dpi", type=float, default=300.0)
+    lo, hi = arguments.DPI_RANGE
+    p.add_argument("--dpi", type=arguments.dpi, default=300.0, help=f"print resolution, {lo:g}-{hi:g}")
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -137,7 +131,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out", type=Path, default=Path("runs/demo"), help="dataset folder (replaced if it exists)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=arguments.seed, default=0)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -35,6 +35,16 @@ def run_simulate(args: argparse.Namespace) -> int:
     except (ScenarioError, WaypointFileError, SimulationError) as exc:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(
+            f"hec: error: cannot write {args.out}: {exc.strerror or exc}{where}; nothing written",
+            file=sys.stderr,
+        )
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: nothing written to {args.out}", file=sys.stderr)
+        return 130
     _print_simulation(result, scenario.mount.transform())
     if args.command == "demo":
         _demo_detect_and_calibrate(result.out_dir)

@@ -66,9 +66,11 @@ def detect_and_cache(
     settings: DetectorSettings,
     quiet: bool = False,
     on_frame: Callable[[FrameObservations, Frame | None], None] | None = None,
-) -> tuple[list[FrameObservations], Path]:
+    must_cache: bool = True,
+) -> tuple[list[FrameObservations], Path | None]:
     """Detect every frame with a progress bar (unless quiet), write DATASET/detections.json.
-    on_frame: called after each frame. Returns the observations and the cache path."""
+    on_frame: called after each frame. Returns the observations and the cache path; without
+    must_cache, a cache that cannot be written (a read-only dataset) is a note and None."""
     depth_noise = dataset_depth_noise(dataset)
     if "depth_noise" not in dataset.metadata:
         print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
@@ -80,7 +82,13 @@ def detect_and_cache(
             bar.update()
 
         observations = observe_dataset(dataset, settings, depth_noise, progress=after_frame)
-    return observations, save_observations(dataset.root, observations, settings, depth_noise)
+    try:
+        return observations, save_observations(dataset.root, observations, settings, depth_noise)
+    except OSError as exc:
+        if must_cache:
+            raise
+        print(f"note: cannot write {dataset.root / CACHE_FILE} ({exc.strerror}): not cached", file=sys.stderr)
+        return observations, None
 
 
 def cached_or_detected(dataset: Dataset, quiet: bool = False) -> tuple[list[FrameObservations], str]:
@@ -93,8 +101,8 @@ def cached_or_detected(dataset: Dataset, quiet: bool = False) -> tuple[list[Fram
     except ObservationCacheError as exc:
         reason = "no detections cache" if not (dataset.root / CACHE_FILE).exists() else str(exc)
     print(f"note: {reason}; detecting the board in {len(dataset)} frames", file=sys.stderr)
-    observations, cache = detect_and_cache(dataset, DetectorSettings(), quiet)
-    return observations, f"detected now, cached in {cache}"
+    observations, cache = detect_and_cache(dataset, DetectorSettings(), quiet, must_cache=False)
+    return observations, f"detected now, cached in {cache}" if cache else "detected now, not cached"
 
 
 def overlay_writer(dataset: Dataset) -> Callable[[FrameObservations, Frame | None], None]:

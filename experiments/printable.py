@@ -11,12 +11,20 @@ from PIL import Image
 from estimator.targets.board import BoardDefinition, board_image
 
 SCALE_BAR_M = 0.1
+MIN_MODULE_PX = 4  # a QR module drawn narrower than this prints too coarse to keep its corners exact
 
 
 def printable_board(board: BoardDefinition, dpi: float) -> np.ndarray:
     """(H, W) uint8 sheet at ``dpi`` with the board name, marker IDs and a 100 mm scale bar
     drawn in the margins (outside every quiet zone)."""
     px_per_m = dpi / 0.0254
+    module_px = board.marker_size_m / board.modules * px_per_m
+    if not module_px >= MIN_MODULE_PX:
+        needed = MIN_MODULE_PX * board.modules / board.marker_size_m * 0.0254
+        raise ValueError(
+            f"at {dpi:g} dpi a QR module of board '{board.name}' is {module_px:.1f} px wide; give --dpi "
+            f"{needed:.0f} or more"
+        )
     sheet = board_image(board, px_per_m)
     h, w = sheet.shape
     font_scale = max(0.4, dpi / 300 * 0.9)

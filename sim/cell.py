@@ -29,6 +29,9 @@ from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
 # Simulated timing: joint speed while moving and the settle time at each waypoint.
 JOINT_SPEED_RAD_S = 0.5
 SETTLE_S = 1.0
+# QR modules narrower than this in the image do not decode (measured: 8/8 markers at 2.2 px,
+# 7/8 at 2.0, 1/8 at 1.7 on the default board).
+MIN_MODULE_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -110,32 +113,34 @@ class SimCell:
     def flange_pose(self) -> np.ndarray:
         """Reported T_base_flange (4, 4): the nominal kinematics of the measured joints, with the
         robot pose noise (without arm errors: the true pose with the robot pose noise)."""
-        return self._reported_pose_and_joints()[0]
+        return self._reported_pose_and_joints(self.rng)[0]
 
-    def _reported_pose_and_joints(self) -> tuple[np.ndarray, np.ndarray]:
+    def _reported_pose_and_joints(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """What the controller reports: T_base_flange (4, 4) and the joints (6,) it read."""
         arm = self.scenario.errors.arm
         joints = self.joints.copy()
         if arm.enabled:
             if arm.encoder_sigma_deg > 0:
-                joints = joints + np.radians(arm.encoder_sigma_deg) * self.rng.standard_normal(6)
+                joints = joints + np.radians(arm.encoder_sigma_deg) * rng.standard_normal(6)
             T_base_flange = forward(self.cell.kinematics, joints)
         else:
             T_base_flange = self.true_flange_pose()
-        return perturb_flange_pose(T_base_flange, self.scenario.noise.robot_pose, self.rng), joints
+        return perturb_flange_pose(T_base_flange, self.scenario.noise.robot_pose, rng), joints
 
-    def capture(self) -> tuple[Frame, FrameTruth]:
-        """Render and apply the sensor models. Returns the frame and its ground truth."""
-        rgb, depth_true = self.camera.view(*self.render_true(), self.rng)
+    def capture(self, rng: np.random.Generator | None = None) -> tuple[Frame, FrameTruth]:
+        """Render and apply the sensor models with noise from rng (default: the cell's; see
+        sim.noise.waypoint_rng). Returns the frame and its ground truth."""
+        rng = self.rng if rng is None else rng
+        rgb, depth_true = self.camera.view(*self.render_true(), rng)
         T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
         noise = self.scenario.noise
-        rgb = apply_rgb_models(self.camera.light(rgb, T_cam_board, self.rng), noise.rgb, self.rng)
+        rgb = apply_rgb_models(self.camera.light(rgb, T_cam_board, rng), noise.rgb, rng)
         k = self.camera.intrinsics
-        depth = apply_depth_models(depth_true, k, noise, self.rng, self.camera.depth_correlation_px())
-        T_base_flange, joints = self._reported_pose_and_joints()
+        depth = apply_depth_models(depth_true, k, noise, rng, self.camera.depth_correlation_px())
+        T_base_flange, joints = self._reported_pose_and_joints(rng)
         frame = Frame(
             rgb=rgb,
-            depth_m=self.camera.holes(depth, self.rng),
+            depth_m=self.camera.holes(depth, rng),
             intrinsics=self.intrinsics,
             T_base_flange=T_base_flange,
             joints=joints,
@@ -203,6 +208,14 @@ class SimCell:
             what = ", ".join(f"{i} by {label}" for i, label in sorted(hidden.items()))
             return f"markers hidden: {what}"
         return None
+
+    def smallest_module_px(self) -> float:
+        """The width in pixels of a QR module where the board shows it smallest in the image
+        (shortest marker side over the modules per side): below MIN_MODULE_PX nothing decodes."""
+        T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
+        uv = project(T_cam_board, self._true_corners, self.camera.intrinsics).reshape(-1, 4, 2)
+        sides = np.linalg.norm(uv - np.roll(uv, 1, axis=1), axis=2)
+        return float(sides.min()) / self.board.modules
 
     def _hidden_corners(self, corners_board: np.ndarray) -> dict[int, str]:
         """Markers with a corner whose line of sight hits something else first: ID -> what."""

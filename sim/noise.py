@@ -25,6 +25,14 @@ from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
 MAX_RANGE_M = 10.0
+# Tags the per-waypoint streams, apart from default_rng(seed) (which draws the true cell).
+_WAYPOINT_STREAM = 1
+
+
+def waypoint_rng(seed: int, waypoint_index: int) -> np.random.Generator:
+    """The generator of one waypoint's capture noise: drawn per waypoint index, so a recording
+    resumed at waypoint 7 draws what an uninterrupted one draws there."""
+    return np.random.default_rng([seed, _WAYPOINT_STREAM, waypoint_index])
 
 
 def depth_sigma(z_m: np.ndarray, settings: DepthNoise) -> np.ndarray:

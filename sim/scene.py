@@ -26,11 +26,13 @@ from estimator.geometry.transforms import invert, make_transform, xyz_quat_from_
 from estimator.io.models import models_dir
 from estimator.targets.board import BoardDefinition, board_image
 from sim.model_errors import PrintedBoard
+from sim.scenario import ScenarioError
 
 CAMERA_NAME = "hec_camera"
 DEPTH_SENSOR_NAME = "hec_depth_sensor"
 BOARD_GEOM = "board_sheet"
 ARM_PREFIX = "arm/"
+MIN_TABLE_HEIGHT_M = 0.05  # a board lying face up sits on a table: its top this high at least
 # The arm's link bodies in DH order: link i turns about its z with joint i, link i + 1 (the
 # flange after the last) sits at its DH offset transz(d_i) transx(a_i) rotx(alpha_i).
 ARM_LINKS = (
@@ -281,6 +283,11 @@ def _sheet_grid(printed: PrintedBoard) -> tuple[list[float], list[float], list[i
 def _add_table(spec: mujoco.MjSpec, top_centre_world: np.ndarray) -> None:
     """A table whose top face is at top_centre_world (under a board lying face up)."""
     x, y, z = top_centre_world
+    if z < MIN_TABLE_HEIGHT_M:
+        raise ScenarioError(
+            f"key 'board.translation_m': it puts the board {z:.3f} m above the floor, too low for the table "
+            f"under it (at least {MIN_TABLE_HEIGHT_M:g} m; the base frame's y points up)"
+        )
     table = {"contype": 0, "conaffinity": 1, "material": "table"}
     spec.worldbody.add_geom(
         name="table_top",

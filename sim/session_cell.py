@@ -6,17 +6,21 @@ from __future__ import annotations
 from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
 from estimator.io.dataset import Capture
 from sim.cell import SimCell
+from sim.noise import waypoint_rng
 
 
 class SimulatedCell:
     """A SimCell behind the session interface. Planning moves the simulated arm through the
-    waypoints and back without drawing noise, so a session draws the same noise as
+    waypoints and back without drawing noise, and each capture draws the noise of its waypoint
+    (sim.noise.waypoint_rng), so a session, resumed or not, draws the same noise as
     `hec simulate` with the same seed."""
 
     source = "sim"
 
-    def __init__(self, cell: SimCell) -> None:
+    def __init__(self, cell: SimCell, seed: int) -> None:
         self.cell = cell
+        self.seed = seed
+        self._waypoint: int | None = None
         self.intrinsics = cell.intrinsics
         self.board = cell.board
         self.depth_scale_m = cell.scenario.noise.depth_quantisation.depth_scale_m
@@ -39,9 +43,12 @@ class SimulatedCell:
     def move_to(self, move: PlannedMove) -> None:
         """Raises WaypointRejected when the planned joints cannot be used from here."""
         self.cell.move_to(Waypoint(move.waypoint.index, move.waypoint.label, joints=move.joints))
+        self._waypoint = move.waypoint.index
 
     def capture(self) -> Capture:
-        frame, truth = self.cell.capture()
+        if self._waypoint is None:
+            raise ValueError("capture before the first move: no waypoint to draw the noise of")
+        frame, truth = self.cell.capture(waypoint_rng(self.seed, self._waypoint))
         return Capture(frame, true_T_base_flange=truth.T_base_flange, true_joints=truth.joints)
 
     def close(self) -> None:

@@ -17,8 +17,8 @@ from estimator.geometry.waypoints import (
     rotation_rich_waypoints,
 )
 from estimator.io.dataset import DatasetWriter
-from sim.cell import SimCell
-from sim.noise import depth_noise_model, robot_pose_noise_model
+from sim.cell import MIN_MODULE_PX, SimCell
+from sim.noise import depth_noise_model, robot_pose_noise_model, waypoint_rng
 from sim.preview import write_preview
 from sim.scenario import Scenario
 
@@ -54,6 +54,18 @@ def simulation_metadata(scenario: Scenario, seed: int) -> dict:
     }
 
 
+def _warn_small_markers(module_px: list[float]) -> None:
+    """Say so on stderr when frames show the markers too small to decode (sim.cell.MIN_MODULE_PX)."""
+    small = [px for px in module_px if px < MIN_MODULE_PX]
+    if small:
+        tqdm.write(
+            f"warning: in {len(small)} of {len(module_px)} frames the markers are too small to decode: a QR "
+            f"module is {min(small):.2g} px wide (at least {MIN_MODULE_PX:g} px needed); move the views "
+            "closer to the board or narrow the camera's field of view (camera.fovy_deg)",
+            file=sys.stderr,
+        )
+
+
 def simulate(
     scenario: Scenario,
     out_dir: str | Path,
@@ -65,7 +77,8 @@ def simulate(
     """Render every reachable waypoint of the scenario into a dataset at out_dir.
 
     Waypoints that cannot be used are skipped, reported on stderr and listed
-    in dataset.json with their reason. ``seed`` drives every noise model.
+    in dataset.json with their reason. ``seed`` drives every noise model: the true cell from
+    default_rng(seed), each capture from sim.noise.waypoint_rng(seed, waypoint index).
     """
     waypoints = scenario_waypoints(scenario)
     rng = np.random.default_rng(seed)
@@ -73,6 +86,7 @@ def simulate(
     truth = cell.ground_truth()
     skipped: list[tuple[int, str]] = []
     frame_rgb: list[np.ndarray] = []
+    module_px: list[float] = []
     try:
         with DatasetWriter(
             out_dir,
@@ -82,6 +96,8 @@ def simulate(
             source="sim",
             force=force,
         ) as writer:
+            for partial in writer.removed:
+                print(f"note: removed {partial}, left behind by a run that was killed", file=sys.stderr)
             for waypoint in tqdm(
                 waypoints, desc="rendering", unit="view", disable=not progress, file=sys.stderr
             ):
@@ -94,13 +110,15 @@ def simulate(
                         file=sys.stderr,
                     )
                     continue
-                frame, frame_truth = cell.capture()
+                frame, frame_truth = cell.capture(waypoint_rng(seed, waypoint.index))
+                module_px.append(cell.smallest_module_px())
                 writer.add_frame(frame)
                 truth.T_base_flange.append(frame_truth.T_base_flange)
                 truth.joints.append(frame_truth.joints)
                 frame_rgb.append(frame.rgb)
             if not frame_rgb:
                 raise SimulationError("no waypoint could be used; see the reasons above")
+            _warn_small_markers(module_px)
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
             extra = simulation_metadata(scenario, seed)
             extra["simulation"] |= {

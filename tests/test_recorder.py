@@ -61,5 +61,5 @@ def test_resume_refuses_another_camera(tmp_path: Path) -> None:
     root = tmp_path / "session"
     _recorder(root).add_frame(_capture(0), waypoint=0)
     other = CameraIntrinsics(64, 48, 61.0, 60.0, 31.5, 23.5)
-    with pytest.raises(DatasetError, match="cannot resume, 'camera' was"):
+    with pytest.raises(DatasetError, match="cannot resume, 'camera.fx' was 60.0 and is now 61.0"):
         _recorder(root, resume=True, intrinsics=other)

@@ -258,3 +258,27 @@ def test_convergence_ends_at_the_ekf_estimate_with_its_covariance() -> None:
     np.testing.assert_allclose(conv.error[-1], pose_minus(result.T_flange_cam, X), atol=1e-12)
     np.testing.assert_allclose(conv.sigma[-1], np.sqrt(np.diag(result.covariance)), rtol=1e-9)
     assert np.all(conv.sigma[-1] < conv.sigma[0])  # the band narrows as waypoints come in
+
+
+def test_an_unfinished_sweep_says_which_trials_and_cells_are_missing(
+    rows: list[dict], tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """Rows of cell c0 only (one trial without ekf) of a three-cell sweep: the page and the terminal
+    say what is missing."""
+
+    def sweep_id(row: dict) -> str:
+        return row_schema.trial_id(int(row["cell"][1:]), int(row["trial_id"].split("-")[1]))
+
+    present = [
+        {**r, "trial_id": sweep_id(r)}
+        for r in rows
+        if r["cell"] == "c0" and not (r["method"] == "ekf" and r["trial_id"].endswith("-2"))
+    ]
+    write_rows(tmp_path, present)
+    cells = [{"cell": f"c{i}", "index": i, "parameters": {}} for i in range(3)]
+    sweep = {"config": {"cells": cells, "trials": TRIALS_PER_CELL, "methods": list(METHODS)}}
+    (tmp_path / row_schema.META_FILE).write_text(json.dumps(sweep))
+    assert _run(["report", str(tmp_path)]) == 0
+    expected = "unfinished sweep: 6 of 9 trials missing (no trial at all of cells c1, c2); 1 method rows"
+    assert expected in capsys.readouterr().err
+    assert expected in (tmp_path / report.REPORT_FILE).read_text()

@@ -172,13 +172,13 @@ def test_crash_mid_run_leaves_no_folder(
     captured: list[int] = []
     partial_at_crash: list[Path] = []
 
-    def capture_then_crash(self: SimCell) -> tuple:
+    def capture_then_crash(self: SimCell, rng: np.random.Generator | None = None) -> tuple:
         """The real capture for the first frame, then a crash (with the first frame on disk)."""
         if captured:
             partial_at_crash.extend(out.parent.glob(f".{out.name}.partial-*/rgb/*.png"))
             raise _Crash("simulated crash after the first frame")
         captured.append(1)
-        return original(self)
+        return original(self, rng)
 
     monkeypatch.setattr(SimCell, "capture", capture_then_crash)
     with pytest.raises(_Crash):

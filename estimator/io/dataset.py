@@ -46,11 +46,12 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
+from estimator.io.depth_png import decode_depth, encode_depth
 from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
+from estimator.io.jsonfile import first_difference, read_json_object
+from estimator.io.lock import acquire_lock, release_lock, remove_dead_partials
 from estimator.targets.board import BoardDefinition, BoardDefinitionError, load_board
 
-UINT16_MAX = 65535
 FORMAT = "hec-dataset"
 VERSION = 1
 FRAME_COLUMNS = (
@@ -127,7 +128,8 @@ def _dump_json(path: Path, data: dict) -> None:
 
 class DatasetWriter:
     """Write a dataset; use as a context manager. Nothing appears at ``out_dir``
-    until ``finish`` succeeds. An existing ``out_dir`` is replaced only with force."""
+    until ``finish`` succeeds. An existing ``out_dir`` is replaced only with force.
+    Temporary folders of out_dir left by killed runs are removed (listed in ``removed``)."""
 
     def __init__(
         self,
@@ -146,6 +148,7 @@ class DatasetWriter:
         self.depth_scale_m = depth_scale_m
         self.source = source
         self.force = force
+        self.removed = remove_dead_partials(self.out_dir)
         self.tmp_dir = self.out_dir.parent / f".{self.out_dir.name}.partial-{os.getpid()}"
         if self.tmp_dir.exists():
             shutil.rmtree(self.tmp_dir)
@@ -194,7 +197,7 @@ class DatasetRecorder:
     (same camera intrinsics, depth scale, board and source, or DatasetError) and appends.
 
     extra: more dataset.json fields; ground_truth (simulation): the cell's truth, its
-    per-frame lists filled by add_frame.
+    per-frame lists filled by add_frame; fixed: keys of extra a resumed session must share.
     """
 
     def __init__(
@@ -207,24 +210,33 @@ class DatasetRecorder:
         extra: dict | None = None,
         ground_truth: GroundTruth | None = None,
         resume: bool = False,
+        fixed: tuple[str, ...] = (),
     ) -> None:
         self.root = Path(out_dir)
+        self.fixed = fixed
+        self.notes: list[str] = []  # said to the user: a stale lock taken over
         self.intrinsics, self.board, self.depth_scale_m = intrinsics, board, depth_scale_m
         self.source, self.extra = source, dict(extra or {})
         self.ground_truth = ground_truth
         self.rows: list[dict] = []
-        if resume:
-            self._reopen()
-        else:
-            self._create()
+        try:
+            if resume:
+                self._reopen()
+            else:
+                self._create()
+        except BaseException:  # a session that could not start leaves no lock
+            release_lock(self.root)
+            raise
 
     def _create(self) -> None:
         if self.root.exists():
             raise FileExistsError(
                 f"{self.root} already exists; add --resume to continue that session, or choose another --out"
             )
+        self.root.mkdir(parents=True)
+        acquire_lock(self.root, "a recording")
         for sub in ("rgb", "depth", "depth_samples"):
-            (self.root / sub).mkdir(parents=True)
+            (self.root / sub).mkdir()
         _dump_json(self.root / "board.json", self.board.to_dict())
         with open(self.root / "frames.csv", "w", newline="") as f:
             csv.writer(f, lineterminator="\n").writerow((*FRAME_COLUMNS, *SESSION_COLUMNS))
@@ -235,14 +247,19 @@ class DatasetRecorder:
         line cut short by the interruption, and read the frames recorded so far."""
         meta_path = self.root / "dataset.json"
         meta = read_json_object(meta_path, DatasetError, "missing: nothing to resume here")
+        stale = acquire_lock(self.root, "a recording")
+        if stale is not None:
+            self.notes.append(stale)
         checks = {
             "camera": (meta.get("camera"), self.intrinsics.to_dict()),
             "depth_scale_m": (meta.get("depth_scale_m"), self.depth_scale_m),
             "source": (meta.get("source"), self.source),
         }
+        checks |= {key: (meta.get(key), self.extra.get(key)) for key in self.fixed}
         for key, (recorded, now) in checks.items():
-            if recorded != now:
-                raise DatasetError(f"{meta_path}: cannot resume, '{key}' was {recorded!r} and is now {now!r}")
+            difference = first_difference(recorded, json.loads(json.dumps(now)), key)
+            if difference is not None:
+                raise DatasetError(f"{meta_path}: cannot resume, {difference}")
         if load_board(self.root / "board.json").to_dict() != self.board.to_dict():
             raise DatasetError(f"{self.root / 'board.json'}: cannot resume, the board is another one")
         frames_path = self.root / "frames.csv"
@@ -289,9 +306,10 @@ class DatasetRecorder:
 
     def finish(self, state: str, extra: dict | None = None) -> Path:
         """Write dataset.json once more with the session's end state ('complete' or
-        'interrupted') and any more fields."""
+        'interrupted') and any more fields, and unlock the folder."""
         self.extra |= extra or {}
         self._write_metadata(state)
+        release_lock(self.root)
         return self.root
 
     def _write_metadata(self, state: str) -> None:
@@ -363,25 +381,6 @@ def _write_png(path: Path, image: np.ndarray) -> None:
     if not ok:
         raise DatasetError(f"{path}: PNG encoding failed")
     path.write_bytes(encoded.tobytes())
-
-
-def encode_depth(depth_m: np.ndarray, depth_scale_m: float) -> np.ndarray:
-    """Depth in metres (any shape) -> uint16 steps of depth_scale_m, round(depth / scale), as
-    stored in a 16-bit PNG. 0, negative, non-finite and out-of-range (> 65535 steps) depths -> 0."""
-    if not depth_scale_m > 0.0:
-        raise ValueError(f"depth_scale_m must be positive, got {depth_scale_m}")
-    d = np.asarray(depth_m, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        steps = np.rint(d / depth_scale_m)
-        ok = np.isfinite(steps) & (steps > 0) & (steps <= UINT16_MAX)
-    return np.where(ok, steps, 0).astype(np.uint16)
-
-
-def decode_depth(depth_u16: np.ndarray, depth_scale_m: float) -> np.ndarray:
-    """uint16 depth steps (any shape) -> float32 metres, value * depth_scale_m; 0 stays 0 (invalid)."""
-    if not depth_scale_m > 0.0:
-        raise ValueError(f"depth_scale_m must be positive, got {depth_scale_m}")
-    return (np.asarray(depth_u16).astype(np.float64) * depth_scale_m).astype(np.float32)
 
 
 @dataclass

@@ -18,3 +18,14 @@ def read_json_object(path: Path, error: type[Exception], missing: str = "file mi
     if not isinstance(data, dict):
         raise error(f"{path}: expected a JSON object")
     return data
+
+
+def first_difference(recorded: object, now: object, key: str) -> str | None:
+    """Where two JSON values differ, in words ("'simulation.seed' was 7 and is now 8"), or None."""
+    if isinstance(recorded, dict) and isinstance(now, dict):
+        for k in sorted(recorded.keys() | now.keys()):
+            difference = first_difference(recorded.get(k), now.get(k), f"{key}.{k}")
+            if difference is not None:
+                return difference
+        return None
+    return None if recorded == now else f"'{key}' was {recorded!r} and is now {now!r}"

@@ -24,6 +24,10 @@ def read_toml(path: Path, error: type[Exception], kind: str) -> dict:
         raise error(f"{path}: {kind} file not found") from None
     except IsADirectoryError:
         raise error(f"{path}: is a folder, expected a {kind} TOML file") from None
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8), expected a {kind} TOML file"
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{path}: not valid TOML ({exc})") from None
 

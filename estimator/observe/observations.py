@@ -16,6 +16,7 @@ so estimators can be rerun without detecting again.
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import os
@@ -35,6 +36,7 @@ from estimator.targets.qr import DetectorSettings, QRDetector
 CACHE_FILE = "detections.json"
 CACHE_FORMAT = "hec-detections"
 CACHE_VERSION = 1
+FINGERPRINT_FILES = ("dataset.json", "board.json", "frames.csv")  # what a cache was made from
 
 
 class ObservationCacheError(ValueError):
@@ -213,12 +215,20 @@ def observe_dataset(
     return observations
 
 
-def dataset_fingerprint(root: Path) -> str:
-    """sha256 over dataset.json and frames.csv: a cache made for other frames is stale."""
+def dataset_fingerprint(root: Path, frame_count: int) -> str:
+    """sha256 over dataset.json, board.json, frames.csv and the number of frames a cache holds: a
+    cache made for other frames, another board, or fewer frames than the dataset has is stale."""
     digest = hashlib.sha256()
-    for name in ("dataset.json", "frames.csv"):
+    for name in FINGERPRINT_FILES:
         digest.update((root / name).read_bytes())
+    digest.update(f"frames observed: {frame_count}".encode())
     return digest.hexdigest()
+
+
+def _frames_in(root: Path) -> int:
+    """The number of frames of the dataset at root (rows of its frames.csv)."""
+    with open(root / "frames.csv", newline="") as f:
+        return sum(1 for _ in csv.DictReader(f))
 
 
 def _array(a: np.ndarray | None) -> list | None:
@@ -254,7 +264,7 @@ def save_observations(
     data = {
         "format": CACHE_FORMAT,
         "version": CACHE_VERSION,
-        "dataset_fingerprint": dataset_fingerprint(root),
+        "dataset_fingerprint": dataset_fingerprint(root, len(observations)),
         "detector": settings.to_dict(),
         "depth_noise": depth_noise.to_dict(),
         "points": "centre, corner 0..3 (top-left, top-right, bottom-right, bottom-left of the marker)",
@@ -284,6 +294,14 @@ def _opt(value: list | None) -> np.ndarray | None:
     return None if value is None else np.array(value, dtype=np.float64)
 
 
+def _finite(name: str, value: list | None) -> np.ndarray | None:
+    """A marker's array field; ValueError when it holds NaN or infinity (a damaged cache)."""
+    array = _opt(value)
+    if array is not None and not np.all(np.isfinite(array)):
+        raise ValueError(f"marker field '{name}' is not finite")
+    return array
+
+
 def load_observations(
     root: Path, settings: DetectorSettings | None = None
 ) -> tuple[list[FrameObservations], DetectorSettings, DepthNoiseModel]:
@@ -293,9 +311,15 @@ def load_observations(
     data = read_json_object(path, ObservationCacheError, "no detections cache (run `hec detect` first)")
     if data.get("format") != CACHE_FORMAT or data.get("version") != CACHE_VERSION:
         raise ObservationCacheError(f"{path}: expected format {CACHE_FORMAT!r} version {CACHE_VERSION}")
-    if data.get("dataset_fingerprint") != dataset_fingerprint(Path(root)):
+    try:
+        frame_count = _frames_in(Path(root))
+        fingerprint = dataset_fingerprint(Path(root), frame_count)
+    except OSError as exc:
+        raise ObservationCacheError(f"{path}: cannot check it against the dataset ({exc})") from None
+    if data.get("dataset_fingerprint") != fingerprint:
         raise ObservationCacheError(
-            f"{path}: stale, the dataset changed since detection; run `hec detect` again"
+            f"{path}: stale, the dataset or its board changed since detection, or it holds fewer than the "
+            f"dataset's {frame_count} frames; run `hec detect` again"
         )
     try:
         cached_settings = DetectorSettings.from_dict(data["detector"])
@@ -312,7 +336,7 @@ def _frame_from_dict(f: dict) -> FrameObservations:
     markers = [
         MarkerObservation(
             **{
-                f.name: _opt(m[f.name]) if _is_array_field(f) else m[f.name]
+                f.name: _finite(f.name, m[f.name]) if _is_array_field(f) else m[f.name]
                 for f in fields(MarkerObservation)
             }
         )

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from estimator.observe.observations import FrameObservations
-from estimator.solve.baselines import OPENCV_METHODS, opencv_calibrate
+from estimator.solve.baselines import MISFIT_RESIDUAL_PX, OPENCV_METHODS, opencv_calibrate
 from estimator.solve.batch import batch
 from estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
 from estimator.solve.filters import run_filter
@@ -133,6 +133,11 @@ def run_method(
 ) -> Calibration:
     """solve, and the result carries diagnostics['observability'] and the warnings it raises."""
     result = solve(name, problem, options, observations, learned)
+    if name not in OPENCV_METHODS and result.residual_rms_px > MISFIT_RESIDUAL_PX:  # those say it themselves
+        result.warnings.append(
+            f"{name}'s result does not fit the observations (RMS residual {result.residual_rms_px:.0f} px): "
+            "it is likely wrong (wrong board definition, intrinsics or robot poses?); do not use it"
+        )
     noise = result.diagnostics.get("noise")
     seen = camera_problem(name, problem, noise)
     report = observability(seen, _map_state(problem, result))

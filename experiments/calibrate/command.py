@@ -204,7 +204,12 @@ def _context(
 
 
 def _print_header(
-    dataset: Dataset, problem: CalibrationProblem, settings: CalibrateSettings, source: str, noise_source: str
+    dataset: Dataset,
+    problem: CalibrationProblem,
+    observations: list[FrameObservations],
+    settings: CalibrateSettings,
+    source: str,
+    noise_source: str,
 ) -> None:
     n = problem.robot_noise
     inputs = "pixels and depth" if settings.use_depth else "pixels only"
@@ -221,6 +226,14 @@ def _print_header(
     )
     for line in problem.rejected:
         print(f"  left out: {line}")
+    for line in frame_notes(observations):
+        print(f"  warning: {line}")
+
+
+def frame_notes(observations: list[FrameObservations]) -> list[str]:
+    """What the detection said of frames it kept (a depth image not aligned to the colour image,
+    without valid pixels), one line per frame and note."""
+    return [f"frame {o.frame}: {note}" for o in observations for note in o.notes]
 
 
 def _note_ignored_options(settings: CalibrateSettings) -> None:
@@ -267,13 +280,13 @@ def calibrate_dataset(
         settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
     )
     T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
-    _print_header(dataset, problem, settings, source, noise_source)
+    _print_header(dataset, problem, observations, settings, source, noise_source)
     if settings.method == ALL_METHODS:
         print(format_comparison(results, T_true))
     else:
         print(format_calibration(results[0], T_true))
     if json_out is not None:
-        data = _context(dataset, problem, settings, noise_source)
+        data = _context(dataset, problem, settings, noise_source) | {"frame_notes": frame_notes(observations)}
         if settings.method == ALL_METHODS:
             data["results"] = [result_to_dict(r, T_true) for r in results]
         else:

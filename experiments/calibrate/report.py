@@ -4,6 +4,7 @@ every command that reports (the comparison table of several methods is experimen
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -272,11 +273,18 @@ Result = Calibration | MethodFailure
 
 
 def check_json_path(path: Path) -> None:
-    """Raise FileNotFoundError / IsADirectoryError now rather than after the work."""
+    """Raise FileNotFoundError / IsADirectoryError / PermissionError now rather than after the work
+    (a folder that does not exist, a folder given, one that cannot be written: read-only, full)."""
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, expected a JSON file name")
+    probe = path.with_name(f".{path.name}.probe-{os.getpid()}")
+    try:
+        probe.write_bytes(b"{}")
+    except OSError as exc:
+        raise PermissionError(f"{path}: cannot write in {path.parent} ({exc.strerror})") from None
+    probe.unlink()
 
 
 def write_json(path: Path, data: dict) -> Path:

@@ -20,8 +20,10 @@ import numpy as np
 
 from estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
 from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointFileError, read_waypoint_file
-from estimator.io.dataset import DatasetRecorder, GroundTruth
+from estimator.io.dataset import DatasetError, DatasetRecorder, GroundTruth
+from estimator.io.lock import FolderLockedError
 from estimator.solve.methods import DEFAULT_METHOD, METHODS
+from experiments import arguments
 from experiments.session.cell_config import CellConfig, CellConfigError, load_cell_config
 from experiments.session.session import LiveEstimate, SessionCell, run_session
 
@@ -30,6 +32,9 @@ if TYPE_CHECKING:
 
 EXIT_STOPPED = 3
 CALIBRATION_FILE = "calibration.json"
+# dataset.json fields a resumed session must share with the frames before it: a simulation's seed and
+# scenario (its trajectory, mount, noise) and the frame the robot poses are in.
+RESUME_FIXED = ("simulation", "pose_frame")
 
 
 class RecordError(ValueError):
@@ -60,7 +65,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
             help="waypoint CSV (required on the real cell; --sim: default the scenario's trajectory)",
         )
         p.add_argument("--scenario", type=Path, help="--sim: scenario TOML (default: the built-in one)")
-        p.add_argument("--seed", type=int, help="--sim: noise seed (default: the scenario's)")
+        p.add_argument("--seed", type=arguments.seed, help="--sim: noise seed (default: the scenario's)")
         p.add_argument("--out", required=True, type=Path, help="dataset folder to create (or --resume)")
         p.add_argument("--dry-run", action="store_true", help="print the plan and stop; nothing moves")
         p.add_argument("--yes", action="store_true", help="do not ask before the first motion")
@@ -92,7 +97,7 @@ def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], di
     cell = SimCell(scenario, np.random.default_rng(seed))
     extra = simulation_metadata(scenario, seed)
     return (
-        SimulatedCell(cell),
+        SimulatedCell(cell, seed),
         waypoints,
         extra,
         cell.ground_truth(),
@@ -172,6 +177,8 @@ def run(
         RobotError,
         CameraError,
         FileExistsError,
+        FolderLockedError,
+        DatasetError,
     )
     if args.sim:  # only then: importing sim picks an OpenGL backend, which a robot PC may lack
         from sim.scenario import ScenarioError
@@ -280,7 +287,10 @@ def _session(
         extra=extra,
         ground_truth=truth,
         resume=args.resume,
+        fixed=RESUME_FIXED,
     )
+    for note in recorder.notes:
+        print(f"note: {note}", file=sys.stderr)
     live = None if args.no_live else LiveEstimate(recorder.root)
     outcome = run_session(cell, moves, recorder, live)
     print(f"dataset: {outcome.root} ({outcome.total} frames, {outcome.recorded} recorded now)")

@@ -111,7 +111,13 @@ class LiveEstimate:
 
     def save(self, root: Path) -> list[Path]:
         """Write the observations as the dataset's detections.json (after its last change) and,
-        once the estimate has a sigma, the picture of how it settled. Returns the files."""
+        once the estimate has a sigma, the picture of how it settled. Frames recorded but not yet
+        detected (Ctrl-C during a frame's detection) are detected first. Returns the files."""
+        dataset = load_dataset(root)
+        for index in range(len(self.observations), len(dataset)):
+            self.observations.append(
+                observe_frame(index, dataset.frame(index), self.detector, self.depth_noise)
+            )
         written = [save_observations(root, self.observations, self.settings, self.depth_noise)]
         history = self.history()
         if any(c.covariance is not None for _, c in history):

@@ -38,6 +38,7 @@ from experiments.sweep.rows import (
     EXAMPLE_DIR,
     META_FILE,
     ROWS_FILE,
+    trial_id,
 )
 from experiments.sweep.summary import (
     CellSummary,
@@ -65,7 +66,7 @@ th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
 th { background: #f0f0f0; }
 td.name, th.name { text-align: left; }
 tr.cell td { background: #e8eef8; text-align: left; font-weight: 600; }
-td.bad { background: #fde2e2; }
+td.bad, p.bad { background: #fde2e2; }
 img { max-width: 100%; border: 1px solid #ddd; margin: 0.5em 0; }
 .note { color: #555; font-size: 0.9em; }
 pre { background: #f6f6f6; padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
@@ -176,14 +177,43 @@ def _example_section(out_dir: Path) -> tuple[str, int]:
     return "".join(parts), images
 
 
+def missing_trials(sweep: dict | None, rows: list[dict]) -> str | None:
+    """What an unfinished sweep lacks, in words (the grid cells without any trial, the number of
+    trials and method rows missing), from sweep.json's grid; None when complete or unknown."""
+    config = (sweep or {}).get("config") or {}
+    cells, trials, methods = config.get("cells"), config.get("trials"), config.get("methods")
+    if not isinstance(cells, list) or not isinstance(trials, int) or not isinstance(methods, list):
+        return None
+    present = {(r["trial_id"], r["method"]) for r in rows}
+    try:
+        expected = [trial_id(c["index"], t) for c in cells for t in range(trials)]
+        names = [c["cell"] for c in cells]
+    except (KeyError, TypeError, ValueError):  # a sweep.json not written by `hec sweep`
+        return None
+    absent = [t for t in expected if not any((t, m) in present for m in methods)]
+    short = sum((t, m) not in present for t in expected for m in methods) - len(absent) * len(methods)
+    if not absent and not short:
+        return None
+    seen = {r["cell"] for r in rows}
+    empty = [name for name in names if name not in seen]
+    words = f"unfinished sweep: {len(absent)} of {len(expected)} trials missing"
+    if empty:
+        words += f" (no trial at all of cells {', '.join(empty)})"
+    if short:
+        words += f"; {short} method rows missing from trials present"
+    return words + "; finish it with `hec sweep CONFIG --out DIR --resume`"
+
+
 @dataclass
 class Report:
-    """What build_report wrote: the HTML page, the plot files, the number of embedded images."""
+    """What build_report wrote: the HTML page, the plot files, the number of embedded images, and
+    what an unfinished sweep lacks (None when complete)."""
 
     html: Path
     plots: list[Path]
     images: int
     summaries: list[CellSummary]
+    missing: str | None = None
 
 
 def _convergence_seed(sweep: dict | None) -> int:
@@ -245,6 +275,7 @@ def build_report(out_dir: Path, rows: list[dict] | None = None) -> Report:
     for stale in set(plots_dir.glob("error_vs_*.png")) - set(written):  # an earlier report's parameter
         stale.unlink()
 
+    missing = missing_trials(sweep, rows)
     notes = []
     if not parameters:
         notes.append("No parameter takes more than one value: no plot of error against a parameter.")
@@ -261,6 +292,7 @@ def build_report(out_dir: Path, rows: list[dict] | None = None) -> Report:
 <html lang="en"><head><meta charset="utf-8"><title>hec sweep report: {_e(out_dir.name)}</title>
 <style>{CSS}</style></head><body>
 <h1>Hand-eye calibration sweep: {_e(out_dir.name)}</h1>
+{f"<p class=bad><strong>{_e(missing)}.</strong></p>" if missing else ""}
 <p>{len(rows)} rows: {trials} trials x {len(methods)} methods ({_e(", ".join(methods))})
 over {len(cells)} grid cells; fidelity {_e(", ".join(fidelities))};
 swept: {_e(", ".join(parameters) or "nothing")}; fixed: {fixed_text}.
@@ -285,7 +317,7 @@ component (translation along the flange axes, rotation about the camera axes).</
 """
     report_path = out_dir / REPORT_FILE
     write_atomic(report_path, page.encode("utf-8"))
-    return Report(report_path, written, images, summaries)
+    return Report(report_path, written, images, summaries, missing)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -305,6 +337,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2
     _print_summary(report.summaries)
+    if report.missing:
+        print(f"warning: {report.missing}", file=sys.stderr)
     print(
         f"report: {report.html} ({report.images} images embedded; plots in {report.html.parent / PLOTS_DIR})"
     )

@@ -18,6 +18,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -47,9 +48,11 @@ from experiments.sweep.rows import (
     format_rows,
     row_columns,
 )
-from experiments.sweep.trials import TrialTask, one_line, run_trial, tasks_for
+from experiments.sweep.trials import TrialTask, one_line, remove_temporary_folders, run_trial, tasks_for
 
 POOL_RESTARTS = 3
+PARENT_POLL_S = 0.5  # how often a worker checks that the sweep that started it still runs
+WORKER_EXIT_S = 10.0  # how long a stopped worker may take to remove its temporary folders
 BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -140,16 +143,38 @@ def available_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def _ignore_sigint() -> None:
-    """Worker start: Ctrl-C is the parent's to handle (it stops the workers)."""
+def _worker_exit(*_: object) -> None:
+    """A worker's end when stopped (SIGTERM) or orphaned: remove its trial's temporary folders, exit."""
+    remove_temporary_folders()
+    os._exit(1)
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Exit the worker once its parent is gone (killed: nobody else would stop it)."""
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_S)
+    _worker_exit()
+
+
+def _start_worker(parent_pid: int) -> None:
+    """Worker start: Ctrl-C is the parent's to handle (it stops the workers with SIGTERM, which
+    removes the trial's temporary folders); a worker whose parent dies exits too; progress bars
+    (the render trials' detection) lock with a thread lock."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_exit)
+    # tqdm's default lock is a multiprocessing semaphore, which a stopped worker would leak.
+    tqdm.set_lock(threading.RLock())
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
 
 
 def _local_pool(workers: int) -> ProcessPoolExecutor:
     """Fresh (spawned) processes with one BLAS thread each: set before they import numpy."""
     os.environ.update(BLAS_ENV)
     return ProcessPoolExecutor(
-        workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_sigint
+        workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_start_worker,
+        initargs=(os.getpid(),),
     )
 
 
@@ -174,9 +199,12 @@ def _run_pool(tasks: list[TrialTask], workers: int, on_rows: Callable, on_error:
                 on_rows(rows)
         broken.extend(pending.values())
     except BaseException:
-        for process in list(getattr(pool, "_processes", {}).values()):
+        processes = list(getattr(pool, "_processes", {}).values())
+        for process in processes:
             process.terminate()  # our own workers: a Ctrl-C must not wait for running trials
-        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.join(WORKER_EXIT_S)  # each removes its temporary folders first
+        pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=not broken, cancel_futures=True)
     return sorted(broken, key=lambda t: (t.cell_index, t.trial))

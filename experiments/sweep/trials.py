@@ -45,6 +45,14 @@ from sim.scenario import scenario_from_dict
 # with every marker in view.
 RANDOM_TILT_DEG, RANDOM_ROLL_DEG, RANDOM_DISTANCE_FACTOR = (10.0, 35.0), 30.0, (0.9, 1.2)
 RANDOM_VIEW_DRAWS = 200
+_TEMPORARY: set[Path] = set()  # render trials' scratch folders while they exist
+
+
+def remove_temporary_folders() -> None:
+    """Remove the scratch folders of the render trials running in this process (a worker stopped)."""
+    for folder in list(_TEMPORARY):
+        shutil.rmtree(folder, ignore_errors=True)
+        _TEMPORARY.discard(folder)
 
 
 @dataclass(frozen=True)
@@ -204,6 +212,7 @@ def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> 
     flange = _flange_poses(scenario, board, task.parameters, X, rng)
     sim_seed = int(rng.integers(0, 2**63 - 1))
     tmp = Path(tempfile.mkdtemp(prefix=f"hec-sweep-{task.trial_id}-"))
+    _TEMPORARY.add(tmp)
     try:
         waypoint_file = tmp / "waypoints.csv"
         write_waypoint_file(
@@ -230,6 +239,7 @@ def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> 
         observations, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True, on_frame=on_frame)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        _TEMPORARY.discard(tmp)
     truth, robot = dataset.ground_truth, dataset_robot_noise(dataset)
     arm = dataset_arm(dataset)
     return observations, dataset.board, dataset.intrinsics, robot, arm, truth.T_flange_cam, truth.T_base_board

@@ -1,0 +1,42 @@
+"""Command-line value types whose errors name the option (argparse adds 'argument --NAME:')."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+DPI_RANGE = (72.0, 2400.0)
+
+
+def seed(text: str) -> int:
+    """A noise seed: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """A finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def dpi(text: str) -> float:
+    """A print resolution in dots per inch, within DPI_RANGE."""
+    lo, hi = DPI_RANGE
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of dots per inch, got {text!r}") from None
+    if not lo <= value <= hi:
+        raise argparse.ArgumentTypeError(f"must be {lo:g} to {hi:g} dots per inch, got {text!r}")
+    return value
