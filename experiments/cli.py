@@ -122,6 +122,11 @@ def _add_board(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--board", default="hec_8qr", help="board name in models/boards/ or a board JSON file")
     lo, hi = arguments.DPI_RANGE
     p.add_argument("--dpi", type=arguments.dpi, default=300.0, help=f"print resolution, {lo:g}-{hi:g}")
+    p.add_argument(
+        "--definition",
+        type=Path,
+        help="where to write the board definition with every marker's printed mask (default: OUT with .json)",
+    )
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
@@ -154,11 +159,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "board":
-            from estimator.targets.board import find_board
-            from experiments.printable import save_printable_board
+            from experiments.printable import write_board
 
-            path = save_printable_board(find_board(args.board), args.out, args.dpi)
-            print(f"wrote {path} at {args.dpi:g} dpi: print at 100% scale and check the 100 mm bar")
+            for line in write_board(args.board, args.out, args.dpi, args.definition):
+                print(line)
             return 0
         if args.command == "detect":
             from experiments.detection import run_detect

@@ -1,4 +1,5 @@
-"""A true-scale printable board from a board definition (PNG or PDF at a known DPI)."""
+"""A true-scale printable board from a board definition (PNG or PDF at a known DPI), and the
+definition of what was printed (every marker's mask stated)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from estimator.targets.board import BoardDefinition, board_image
+from estimator.targets.board import BoardDefinition, board_image, find_board, save_board
 
 SCALE_BAR_M = 0.1
 MIN_MODULE_PX = 4  # a QR module drawn narrower than this prints too coarse to keep its corners exact
@@ -69,3 +70,21 @@ def save_printable_board(board: BoardDefinition, path: str | Path, dpi: float = 
     else:
         image.save(path, "PNG", dpi=(dpi, dpi))
     return path
+
+
+def write_board(name: str, out: Path, dpi: float, definition: Path | None = None) -> list[str]:
+    """`hec board`: the sheet of board ``name`` (models/boards/ or a file) at ``out``, and its
+    definition with every marker's version, error correction and mask at ``definition``
+    (default: ``out`` with .json). Returns the lines to print."""
+    board = find_board(name)
+    definition = definition or out.with_suffix(".json")
+    source = Path(name) if Path(name).is_file() else None
+    if source is not None and source.resolve() == definition.resolve():
+        raise ValueError(f"{definition}: that is the board file being printed; choose --definition")
+    path = save_printable_board(board, out, dpi)
+    save_board(board.pinned(), definition)
+    return [
+        f"wrote {path} at {dpi:g} dpi: print at 100% scale and check the 100 mm bar",
+        f"wrote {definition}: the definition of this print (each marker's QR version, error correction "
+        "and mask); give it to the cell or scenario that uses this board",
+    ]

@@ -109,6 +109,7 @@ def observe_frame(
     detections = detector.detect(rgb)
     obs.rejected = detections.rejected
     obs.passes_run = detections.passes_run
+    obs.notes.extend(detections.notes)
     if detections.problem is not None:
         obs.problem = detections.problem
         return obs

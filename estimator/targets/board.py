@@ -1,9 +1,13 @@
 """The calibration board: QR markers with their IDs and corners in the board frame.
 
 A board definition file (JSON, see models/boards/) gives the sheet size, the
-marker side, each marker's centre and the payload prefix. The payload of
-marker ``i`` is ``prefix + f"{i:02d}"``; anything else is a foreign code.
-The same definition renders the simulator's texture and the printable sheet.
+marker side, each marker's centre and what its printed symbol holds. A marker's
+payload is its own ``payload`` string if it has one, else ``payload_prefix +
+f"{id:02d}"`` (the scheme of the boards hec prints); any other payload is a
+foreign code. Its symbol's version and error correction are the board's unless
+the marker states its own, and its mask is ``qr_mask`` if given, else the qrcode
+package's automatic choice (``hec board`` writes the masks it printed). The same
+definition renders the simulator's texture and the printable sheet.
 
 Board frame: origin at the sheet centre, x right, y up, z out of the printed
 face. Corner order of every marker: top-left, top-right, bottom-right,
@@ -12,23 +16,16 @@ bottom-left of the upright symbol (finder patterns at corners 0, 1 and 3).
 
 from __future__ import annotations
 
-import functools
-import re
-from dataclasses import dataclass
+import json
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import qrcode
 
 from estimator.io.jsonfile import read_json_object
 from estimator.io.models import models_dir
+from estimator.targets.qr_symbol import ERROR_CORRECTION, SymbolSpec
 
-_ERROR_CORRECTION = {
-    "L": qrcode.constants.ERROR_CORRECT_L,
-    "M": qrcode.constants.ERROR_CORRECT_M,
-    "Q": qrcode.constants.ERROR_CORRECT_Q,
-    "H": qrcode.constants.ERROR_CORRECT_H,
-}
 # Corner offsets of an upright marker, in units of its side, board frame (x right, y up).
 _CORNER_OFFSETS = np.array([[-0.5, 0.5], [0.5, 0.5], [0.5, -0.5], [-0.5, -0.5]])
 QUIET_ZONE_MODULES = 4
@@ -40,15 +37,18 @@ class BoardDefinitionError(ValueError):
 
 @dataclass(frozen=True)
 class BoardDefinition:
-    """A planar board of QR markers; all lengths in metres."""
+    """A planar board of QR markers; all lengths in metres. qr_version and qr_error_correction
+    are the symbols' defaults; marker_symbols holds each marker's own symbol (markers not in
+    it carry payload_prefix + two digits with the defaults and the automatic mask)."""
 
     name: str
     size_m: tuple[float, float]
     marker_size_m: float
     qr_version: int
     qr_error_correction: str
-    payload_prefix: str
+    payload_prefix: str | None
     marker_centers_m: dict[int, tuple[float, float]]
+    marker_symbols: dict[int, SymbolSpec] = field(default_factory=dict)
 
     @property
     def marker_ids(self) -> list[int]:
@@ -56,19 +56,22 @@ class BoardDefinition:
 
     @property
     def modules(self) -> int:
-        """Modules along one side of a symbol (21 for QR version 1)."""
-        return 17 + 4 * self.qr_version
+        """Modules along one side of the board's smallest-count symbol (21 for QR version 1):
+        quiet_modules / modules is then the largest quiet zone as a fraction of a marker side."""
+        return min(self.symbol(i).modules for i in self.marker_ids)
+
+    def symbol(self, marker_id: int) -> SymbolSpec:
+        """What regenerates marker ``marker_id``'s printed symbol."""
+        if marker_id in self.marker_symbols:
+            return self.marker_symbols[marker_id]
+        return self._default_symbol(marker_id)
 
     def payload(self, marker_id: int) -> str:
-        return f"{self.payload_prefix}{marker_id:02d}"
+        return self.symbol(marker_id).payload
 
     def marker_id_from_payload(self, payload: str) -> int | None:
         """The marker ID a decoded payload names, or None for a foreign code."""
-        match = re.fullmatch(re.escape(self.payload_prefix) + r"(\d{2})", payload)
-        if match is None:
-            return None
-        marker_id = int(match.group(1))
-        return marker_id if marker_id in self.marker_centers_m else None
+        return next((i for i in self.marker_ids if self.payload(i) == payload), None)
 
     def marker_corners(self, marker_id: int) -> np.ndarray:
         """(4, 3) corners of one marker in the board frame, in the documented order."""
@@ -87,10 +90,34 @@ class BoardDefinition:
 
     def module_matrix(self, marker_id: int) -> np.ndarray:
         """(n, n) bool, True where the symbol is dark; row 0 is the symbol's top. Read-only."""
-        return _qr_modules(self.payload(marker_id), self.qr_version, self.qr_error_correction)
+        return self.symbol(marker_id).matrix()
+
+    def pinned(self) -> BoardDefinition:
+        """The same board with every marker's mask stated (automatic choices made explicit), as
+        ``hec board`` records what it printed."""
+        return replace(self, marker_symbols={i: self.symbol(i).pinned() for i in self.marker_ids})
+
+    def _default_symbol(self, marker_id: int) -> SymbolSpec:
+        if self.payload_prefix is None:
+            raise BoardDefinitionError(f"board {self.name!r}: marker {marker_id} has no payload")
+        return SymbolSpec(f"{self.payload_prefix}{marker_id:02d}", self.qr_version, self.qr_error_correction)
+
+    def _marker_dict(self, marker_id: int) -> dict:
+        """A marker's entry: id, centre and only what differs from the board's defaults."""
+        entry: dict = {"id": marker_id, "center_m": list(self.marker_centers_m[marker_id])}
+        symbol = self.symbol(marker_id)
+        if self.payload_prefix is None or symbol.payload != f"{self.payload_prefix}{marker_id:02d}":
+            entry["payload"] = symbol.payload
+        if symbol.version != self.qr_version:
+            entry["qr_version"] = symbol.version
+        if symbol.error_correction != self.qr_error_correction:
+            entry["qr_error_correction"] = symbol.error_correction
+        if symbol.mask is not None:
+            entry["qr_mask"] = symbol.mask
+        return entry
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "format": "hec-board",
             "version": 1,
             "name": self.name,
@@ -99,20 +126,23 @@ class BoardDefinition:
             "qr_version": self.qr_version,
             "qr_error_correction": self.qr_error_correction,
             "payload_prefix": self.payload_prefix,
-            "markers": [{"id": i, "center_m": list(self.marker_centers_m[i])} for i in self.marker_ids],
+            "markers": [self._marker_dict(i) for i in self.marker_ids],
         }
+        if self.payload_prefix is None:
+            del d["payload_prefix"]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> BoardDefinition:
         """Validate and build; errors name ``source`` and the offending field."""
 
-        def field(key: str, kind: type | tuple[type, ...]) -> object:
-            if key not in d:
-                raise BoardDefinitionError(f"{source}: missing field '{key}'")
-            value = d[key]
+        def typed(key: str, kind: type | tuple[type, ...], where: dict = d, name: str = "") -> object:
+            if key not in where:
+                raise BoardDefinitionError(f"{source}: missing field '{name or key}'")
+            value = where[key]
             if not isinstance(value, kind) or isinstance(value, bool):
                 raise BoardDefinitionError(
-                    f"{source}: field '{key}' should be {_kind_name(kind)}, got {value!r}"
+                    f"{source}: field '{name or key}' should be {_kind_name(kind)}, got {value!r}"
                 )
             return value
 
@@ -121,64 +151,106 @@ class BoardDefinition:
                 f"{source}: expected 'format': 'hec-board' and 'version': 1, "
                 f"got {d.get('format')!r} version {d.get('version')!r}"
             )
-        size = field("size_m", list)
+        size = typed("size_m", list)
         if len(size) != 2 or not all(isinstance(v, int | float) and v > 0 for v in size):
             raise BoardDefinitionError(f"{source}: 'size_m' should be [width, height] > 0, got {size}")
-        marker_size = float(field("marker_size_m", (int, float)))
+        marker_size = float(typed("marker_size_m", (int, float)))
         if marker_size <= 0:
             raise BoardDefinitionError(f"{source}: 'marker_size_m' must be > 0, got {marker_size}")
-        version = field("qr_version", int)
-        if not 1 <= version <= 40:
-            raise BoardDefinitionError(f"{source}: 'qr_version' must be 1-40, got {version}")
-        ec = field("qr_error_correction", str)
-        if ec not in _ERROR_CORRECTION:
-            raise BoardDefinitionError(f"{source}: 'qr_error_correction' must be L, M, Q or H, got {ec!r}")
+        version = _check_version(typed("qr_version", int), f"{source}: 'qr_version'")
+        ec = _check_level(typed("qr_error_correction", str), f"{source}: 'qr_error_correction'")
+        prefix = typed("payload_prefix", str) if "payload_prefix" in d else None
         centers: dict[int, tuple[float, float]] = {}
-        for k, marker in enumerate(field("markers", list)):
-            where = f"{source}: markers[{k}]"
+        symbols: dict[int, SymbolSpec] = {}
+        for k, marker in enumerate(typed("markers", list)):
+            where = f"markers[{k}]"
             if not isinstance(marker, dict) or not isinstance(marker.get("id"), int):
-                raise BoardDefinitionError(f"{where}: expected {{'id': int, 'center_m': [x, y]}}")
+                raise BoardDefinitionError(f"{source}: {where}: expected {{'id': int, 'center_m': [x, y]}}")
+            marker_id = marker["id"]
             c = marker.get("center_m")
             if not isinstance(c, list) or len(c) != 2 or not all(isinstance(v, int | float) for v in c):
-                raise BoardDefinitionError(f"{where}.center_m: expected [x, y] in metres, got {c!r}")
-            if not 0 <= marker["id"] <= 99 or marker["id"] in centers:
-                raise BoardDefinitionError(f"{where}.id: IDs must be unique and in 0-99, got {marker['id']}")
-            centers[marker["id"]] = (float(c[0]), float(c[1]))
+                raise BoardDefinitionError(
+                    f"{source}: {where}.center_m: expected [x, y] in metres, got {c!r}"
+                )
+            if "payload" in marker:
+                payload = typed("payload", str, marker, f"{where}.payload")
+                if not payload:
+                    raise BoardDefinitionError(f"{source}: {where}.payload is empty")
+            elif prefix is None:
+                raise BoardDefinitionError(
+                    f"{source}: {where} has no 'payload' and the board no 'payload_prefix'"
+                )
+            else:
+                payload = f"{prefix}{marker_id:02d}"
+            numbered = "payload" not in marker
+            if marker_id in centers or marker_id < 0 or (numbered and marker_id > 99):
+                raise BoardDefinitionError(
+                    f"{source}: {where}.id: IDs must be unique and >= 0 (0-99 when the payload is "
+                    f"payload_prefix + two digits), got {marker_id}"
+                )
+            mask = marker.get("qr_mask")
+            if mask is not None and (
+                not isinstance(mask, int) or isinstance(mask, bool) or not 0 <= mask <= 7
+            ):
+                raise BoardDefinitionError(
+                    f"{source}: {where}.qr_mask must be 0-7 (or absent: automatic), got {mask!r}"
+                )
+            symbol = SymbolSpec(
+                payload,
+                _check_version(marker.get("qr_version", version), f"{source}: {where}.qr_version"),
+                _check_level(marker.get("qr_error_correction", ec), f"{source}: {where}.qr_error_correction"),
+                mask,
+            )
+            try:
+                symbol.matrix()
+            except ValueError as exc:
+                raise BoardDefinitionError(f"{source}: {where}: {exc}") from None
+            centers[marker_id] = (float(c[0]), float(c[1]))
+            symbols[marker_id] = symbol
         if not centers:
             raise BoardDefinitionError(f"{source}: 'markers' is empty")
+        payloads = [s.payload for s in symbols.values()]
+        if len(set(payloads)) != len(payloads):
+            raise BoardDefinitionError(f"{source}: two markers carry the same payload")
         board = cls(
-            name=field("name", str),
+            name=typed("name", str),
             size_m=(float(size[0]), float(size[1])),
             marker_size_m=marker_size,
             qr_version=version,
             qr_error_correction=ec,
-            payload_prefix=field("payload_prefix", str),
+            payload_prefix=prefix,
             marker_centers_m=centers,
+            marker_symbols=symbols,
         )
         board._check_layout(source)
         return board
 
     def _check_layout(self, source: str) -> None:
         """Markers, with their quiet zones, must lie on the sheet and not overlap."""
-        pad = self.marker_size_m * (0.5 + QUIET_ZONE_MODULES / self.modules)
         w, h = self.size_m
+        pads = {
+            i: self.marker_size_m * (0.5 + QUIET_ZONE_MODULES / self.symbol(i).modules)
+            for i in self.marker_ids
+        }
         for i, (cx, cy) in self.marker_centers_m.items():
-            if abs(cx) + pad > w / 2 + 1e-12 or abs(cy) + pad > h / 2 + 1e-12:
+            if abs(cx) + pads[i] > w / 2 + 1e-12 or abs(cy) + pads[i] > h / 2 + 1e-12:
                 raise BoardDefinitionError(f"{source}: marker {i} and its quiet zone do not fit on the sheet")
             for j, (ox, oy) in self.marker_centers_m.items():
-                if j > i and abs(cx - ox) < 2 * pad - 1e-12 and abs(cy - oy) < 2 * pad - 1e-12:
+                pad = pads[i] + pads[j]
+                if j > i and abs(cx - ox) < pad - 1e-12 and abs(cy - oy) < pad - 1e-12:
                     raise BoardDefinitionError(f"{source}: markers {i} and {j} overlap their quiet zones")
 
 
-@functools.lru_cache(maxsize=1024)
-def _qr_modules(payload: str, version: int, error_correction: str) -> np.ndarray:
-    """The module matrix of one QR symbol (cached: encoding costs milliseconds)."""
-    qr = qrcode.QRCode(version=version, error_correction=_ERROR_CORRECTION[error_correction], border=0)
-    qr.add_data(payload)
-    qr.make(fit=False)
-    modules = np.array(qr.get_matrix(), dtype=bool)
-    modules.flags.writeable = False
-    return modules
+def _check_version(version: object, where: str) -> int:
+    if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= 40:
+        raise BoardDefinitionError(f"{where} must be an integer 1-40, got {version!r}")
+    return version
+
+
+def _check_level(level: object, where: str) -> str:
+    if level not in ERROR_CORRECTION:
+        raise BoardDefinitionError(f"{where} must be L, M, Q or H, got {level!r}")
+    return level
 
 
 def _kind_name(kind: type | tuple[type, ...]) -> str:
@@ -206,9 +278,10 @@ def board_image(board: BoardDefinition, px_per_m: float, supersample: int = 4) -
     ss = supersample
     px_x, px_y = w_m / (W * ss), h_m / (H * ss)
     dark = np.zeros((H * ss, W * ss), dtype=bool)
-    module = board.marker_size_m / board.modules
     for marker_id in board.marker_ids:
         modules = board.module_matrix(marker_id)
+        n = modules.shape[0]
+        module = board.marker_size_m / n
         left, top = board.marker_corners(marker_id)[0, :2]
         cols = np.arange(W * ss)
         rows = np.arange(H * ss)
@@ -216,12 +289,21 @@ def board_image(board: BoardDefinition, px_per_m: float, supersample: int = 4) -
         y = h_m / 2 - (rows + 0.5) * px_y
         mc = np.floor((x - left) / module).astype(int)
         mr = np.floor((top - y) / module).astype(int)
-        in_c = (mc >= 0) & (mc < board.modules)
-        in_r = (mr >= 0) & (mr < board.modules)
+        in_c = (mc >= 0) & (mc < n)
+        in_r = (mr >= 0) & (mr < n)
         rr, cc = np.nonzero(in_r)[0], np.nonzero(in_c)[0]
         dark[np.ix_(rr, cc)] |= modules[np.ix_(mr[rr], mc[cc])]
     coverage = dark.reshape(H, ss, W, ss).mean(axis=(1, 3))
     return np.round(255.0 * (1.0 - coverage)).astype(np.uint8)
+
+
+def save_board(board: BoardDefinition, path: str | Path) -> Path:
+    """Write a board definition file (through a temporary name, so no half-written file is left)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(board.to_dict(), indent=2) + "\n")
+    tmp.replace(path)
+    return path
 
 
 def find_board(name: str, base_dir: Path = Path(".")) -> BoardDefinition:

@@ -52,11 +52,13 @@ class Rejection:
 
 @dataclass
 class Detections:
-    """The detector's answer for one image. problem: why the whole image is unusable, else None."""
+    """The detector's answer for one image. problem: why the whole image is unusable, else None.
+    notes: remarks about what the detector assumed (each said once per detector)."""
 
     markers: list[MarkerDetection] = field(default_factory=list)
     rejected: list[Rejection] = field(default_factory=list)
     problem: str | None = None
+    notes: list[str] = field(default_factory=list)
     passes_run: list[str] = field(default_factory=list)
     sharpness: float = 0.0
 

@@ -9,11 +9,18 @@ code (estimator.targets.qr_fit). Passes stop once every marker the board predict
 inside the image has been decoded. Everything not turned into a marker is
 returned as a Rejection with its reason: foreign codes, markers seen twice,
 fits that failed, and markers the board predicts in view that nobody decoded.
+
+The code each marker is compared with is regenerated from its SymbolSpec. When
+a marker is printed with another version, error correction or mask than its
+definition states (another generator, or a board file that leaves the mask to
+the qrcode package), the detector takes what the print holds (as the decoder
+reports it, or as the symbol's format modules read), says so once in the
+Detections' notes, and keeps it for the detector's later images.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -25,12 +32,20 @@ from estimator.targets.qr_fit import (
     DEFAULT_CENTER_FLOOR_PX,
     DEFAULT_CORNER_FLOOR_PX,
     MarkerFitError,
+    corner_orderings,
     fit_marker,
     fits_in_image,
+    module_agreement,
     orient_corners,
+    sample_modules,
 )
+from estimator.targets.qr_symbol import SymbolSpec, read_format
 
 DEFAULT_PASSES = ("zxing@1", "zxing@2", "pyzbar@1", "pyzbar@2")
+# Data-module agreement of two unrelated bit streams is about 0.5; up to this, the data differ.
+RANDOM_DATA_AGREEMENT = 0.6
+# Quiet-zone modules a marker needs in the image for the passes to be expected to decode it.
+DECODER_QUIET_MODULES = 2.0
 
 
 @dataclass(frozen=True)
@@ -39,7 +54,9 @@ class DetectorSettings:
     stop_when_complete: skip later passes once every marker predicted in view is decoded.
     corner_floor_px, center_floor_px: pixel error image noise does not explain (see
     estimator.targets.qr_fit). Markers whose modules or aligned code match worse than
-    min_module_agreement or min_correlation are rejected."""
+    min_module_agreement or min_correlation are rejected. follow_printed_symbol: a marker
+    printed with another version, error correction or mask than its definition is compared
+    with the code as printed (False: rejected, naming the difference)."""
 
     passes: tuple[str, ...] = DEFAULT_PASSES
     stop_when_complete: bool = True
@@ -47,6 +64,7 @@ class DetectorSettings:
     center_floor_px: float = DEFAULT_CENTER_FLOOR_PX
     min_module_agreement: float = 0.9
     min_correlation: float = 0.8
+    follow_printed_symbol: bool = True
 
     def __post_init__(self) -> None:
         if not self.passes:
@@ -62,6 +80,7 @@ class DetectorSettings:
             "center_floor_px": self.center_floor_px,
             "min_module_agreement": self.min_module_agreement,
             "min_correlation": self.min_correlation,
+            "follow_printed_symbol": self.follow_printed_symbol,
         }
 
     @classmethod
@@ -85,6 +104,7 @@ class _Candidate:
     marker_id: int
     corners_px: np.ndarray  # oriented
     found_by: str
+    printed: SymbolSpec
 
 
 class QRDetector:
@@ -94,6 +114,8 @@ class QRDetector:
         self.board = board
         self.settings = settings or DetectorSettings()
         self._passes = [parse_pass(p) for p in self.settings.passes]
+        # Markers found printed otherwise than the board defines, as printed.
+        self._printed: dict[int, SymbolSpec] = {}
 
     def detect(self, image: np.ndarray) -> Detections:
         """Detect the board's markers. image: (H, W, 3) RGB or (H, W) grey, uint8."""
@@ -112,7 +134,7 @@ class QRDetector:
                 if any(_same_place(symbol, other) for other in seen):
                     continue
                 seen.append(symbol)
-                candidate = self._classify(gray, symbol, spec, result.rejected)
+                candidate = self._classify(gray, symbol, spec, result)
                 if candidate is not None:
                     candidates.append(candidate)
             result.passes_run.append(spec)
@@ -138,11 +160,11 @@ class QRDetector:
         return result
 
     def _classify(
-        self, gray: np.ndarray, symbol: DecodedSymbol, spec: str, rejected: list[Rejection]
+        self, gray: np.ndarray, symbol: DecodedSymbol, spec: str, result: Detections
     ) -> _Candidate | None:
         marker_id = self.board.marker_id_from_payload(symbol.payload)
         if marker_id is None:
-            rejected.append(
+            result.rejected.append(
                 Rejection(
                     f"foreign QR code {symbol.payload[:40]!r}: not a marker of board {self.board.name!r}",
                     payload=symbol.payload,
@@ -150,26 +172,86 @@ class QRDetector:
                 )
             )
             return None
-        corners, agreement = orient_corners(gray, symbol.corners_px, self.board.module_matrix(marker_id))
-        if agreement < self.settings.min_module_agreement:
-            rejected.append(
-                Rejection(
-                    f"marker {marker_id}: only {agreement:.0%} of the modules under the symbol "
-                    "match its code",
-                    marker_id,
-                    symbol.payload,
-                    symbol.corners_px,
-                )
+        expected = self._printed.get(marker_id, self.board.symbol(marker_id)).pinned()
+        reported = replace(
+            expected,
+            version=symbol.version or expected.version,
+            error_correction=symbol.error_correction or expected.error_correction,
+            mask=expected.mask if symbol.mask is None else symbol.mask,
+        )
+        printed = self._printed_symbol(gray, symbol.corners_px, expected, reported)
+        if isinstance(printed, str):
+            result.rejected.append(
+                Rejection(f"marker {marker_id}: {printed}", marker_id, symbol.payload, symbol.corners_px)
             )
             return None
-        return _Candidate(symbol, marker_id, corners, spec)
+        code, corners = printed
+        if code != expected:
+            self._follow(marker_id, code, result)
+        return _Candidate(symbol, marker_id, corners, spec, code)
+
+    def _printed_symbol(
+        self, gray: np.ndarray, corners_px: np.ndarray, expected: SymbolSpec, reported: SymbolSpec
+    ) -> tuple[SymbolSpec, np.ndarray] | str:
+        """The symbol as printed and the (4, 2) corners oriented by it, or why the marker is
+        rejected. reported: ``expected`` with what the decoder read. Without a match, the
+        symbol's format modules say what differs."""
+        follow = self.settings.follow_printed_symbol
+        least = self.settings.min_module_agreement
+        if reported != expected and not follow:
+            return f"the printed code differs from the regenerated one: {expected.differences(reported)}"
+        try:
+            corners, agreement = orient_corners(gray, corners_px, reported.matrix())
+        except ValueError as exc:  # the payload does not fit the version the decoder read
+            return f"the printed code cannot be regenerated: {exc}"
+        if agreement >= least:
+            return reported, corners
+        framed, read = _read_format(gray, corners_px, reported, least)
+        if framed < least:
+            return (
+                f"the decoder's corners do not frame the code: only {framed:.0%} of its finder and timing "
+                f"modules match ({agreement:.0%} of all modules)"
+            )
+        if read is None:
+            return (
+                f"only {agreement:.0%} of the modules match the regenerated code ({reported.describe()}) "
+                "and the printed format modules cannot be read"
+            )
+        dark, fmt = read
+        printed = replace(reported, error_correction=fmt[0], mask=fmt[1])
+        if printed != reported:
+            if not follow:
+                return f"the printed code differs from the regenerated one: {expected.differences(printed)}"
+            try:
+                corners, agreement = orient_corners(gray, corners_px, printed.matrix())
+            except ValueError as exc:
+                return f"the printed code ({printed.describe()}) cannot be regenerated: {exc}"
+            if agreement >= least:
+                return printed, corners
+        return _data_mismatch(dark, printed)
+
+    def _follow(self, marker_id: int, printed: SymbolSpec, result: Detections) -> None:
+        """Use ``printed`` for this marker from now on, and say so once."""
+        if self._printed.get(marker_id) == printed:
+            return
+        defined = self.board.symbol(marker_id)
+        self._printed[marker_id] = printed
+        unstated = (
+            " (the board file states no mask)"
+            if defined.mask is None and printed.mask != defined.pinned().mask
+            else ""
+        )
+        result.notes.append(
+            f"marker {marker_id} is printed otherwise than board {self.board.name!r} defines: "
+            f"{defined.pinned().differences(printed)}{unstated}; using the printed code"
+        )
 
     def _refine(self, gray: np.ndarray, candidate: _Candidate, result: Detections) -> None:
         try:
             fit = fit_marker(
                 gray,
                 candidate.corners_px,
-                self.board.module_matrix(candidate.marker_id),
+                candidate.printed.matrix(),
                 corner_floor_px=self.settings.corner_floor_px,
                 center_floor_px=self.settings.center_floor_px,
                 min_correlation=self.settings.min_correlation,
@@ -200,10 +282,11 @@ class QRDetector:
         )
 
     def _missing_in_view(
-        self, shape: tuple[int, ...], known: dict[int, np.ndarray], accounted: set[int]
+        self, shape: tuple[int, ...], known: dict[int, np.ndarray], accounted: set[int], quiet_modules: float
     ) -> dict[int, np.ndarray]:
         """Markers not in ``accounted`` that the board-to-image homography of the ``known``
-        markers' corners puts in view, with their predicted (4, 2) corners."""
+        markers' corners puts in view with ``quiet_modules`` of their quiet zone, with their
+        predicted (4, 2) corners."""
         board_xy = np.concatenate([self.board.marker_corners(i)[:, :2] for i in known])
         H, _ = cv2.findHomography(board_xy, np.concatenate(list(known.values())), 0)
         if H is None:
@@ -214,36 +297,91 @@ class QRDetector:
             if marker_id in accounted or not np.all(xy1[:, 2] > 0):
                 continue
             corners = xy1[:, :2] / xy1[:, 2:3]
-            if self._in_view(shape, corners):
+            if self._in_view(shape, corners, self.board.symbol(marker_id).modules, quiet_modules):
                 missing[marker_id] = corners
         return missing
 
-    def _in_view(self, shape: tuple[int, ...], corners_px: np.ndarray) -> bool:
-        """Whether a marker with its quiet zone lies inside the image and is big enough to decode."""
+    @staticmethod
+    def _in_view(shape: tuple[int, ...], corners_px: np.ndarray, n: int, quiet_modules: float) -> bool:
+        """Whether a marker of n modules with quiet_modules of its quiet zone lies inside the image
+        and is big enough to decode."""
         side = float(np.linalg.norm(corners_px - np.roll(corners_px, 1, axis=0), axis=1).min())
-        return fits_in_image(corners_px, 2.0 / self.board.modules, shape) and side >= 1.5 * self.board.modules
+        return fits_in_image(corners_px, quiet_modules / n, shape) and side >= 1.5 * n
 
     def _all_in_view_found(self, shape: tuple[int, ...], candidates: list[_Candidate]) -> bool:
         known = {c.marker_id: c.corners_px for c in candidates}
         if set(known) >= set(self.board.marker_ids):
             return True
-        return bool(known) and not self._missing_in_view(shape, known, set(known))
+        return bool(known) and not self._missing_in_view(shape, known, set(known), DECODER_QUIET_MODULES)
 
     def _report_missing(self, shape: tuple[int, ...], result: Detections) -> None:
+        """A rejection for every marker whose code (if not its quiet zone) the found ones put in view."""
         if not result.markers:
             return
         known = {m.marker_id: m.corners_px for m in result.markers}
         accounted = set(known) | {r.marker_id for r in result.rejected}
-        for marker_id, corners in self._missing_in_view(shape, known, accounted).items():
+        for marker_id, corners in self._missing_in_view(shape, known, accounted, 0.0).items():
             u, v = corners.mean(axis=0)
+            n = self.board.symbol(marker_id).modules
+            cut = (
+                ""
+                if self._in_view(shape, corners, n, DECODER_QUIET_MODULES)
+                else "; its quiet zone leaves the image"
+            )
             result.rejected.append(
                 Rejection(
                     f"marker {marker_id}: expected at ({u:.0f}, {v:.0f}) but no pass decoded it "
-                    f"({', '.join(result.passes_run)})",
+                    f"({', '.join(result.passes_run)}){cut}",
                     marker_id,
                     corners_px=corners,
                 )
             )
+
+
+def _read_format(
+    gray: np.ndarray, corners_px: np.ndarray, spec: SymbolSpec, least: float
+) -> tuple[float, tuple[np.ndarray, tuple[str, int, int]] | None]:
+    """The printed format (level, mask, bit errors) and the (n, n) modules read under the corner
+    ordering that frames ``spec``'s mask-independent modules (at least ``least`` of them) and
+    reads the nearest format word: the format tells the two orderings apart that the
+    mask-independent modules cannot (the symbol and its mirror about the diagonal).
+    Returns the best framing agreement and the reading, None if no format could be read."""
+    framed, best = 0.0, None
+    for corners in corner_orderings(corners_px):
+        agreement = module_agreement(gray, corners, spec.matrix(), spec.mask_independent())
+        framed = max(framed, agreement)
+        dark = sample_modules(gray, corners, spec.modules) if agreement >= least else None
+        fmt = None if dark is None else read_format(dark)
+        if fmt is not None and (best is None or fmt[2] < best[1][2]):
+            best = (dark, fmt)
+    return framed, best
+
+
+def _data_mismatch(dark: np.ndarray, printed: SymbolSpec) -> str:
+    """Why modules read as ``dark`` (n, n) do not match ``printed``, whose format and fixed
+    patterns they do match: about half the data modules wrong is another bit stream (the
+    payload encoded otherwise); fewer, a part of the symbol read wrong (named by its quarter)."""
+    wrong = dark != printed.matrix()
+    data_agreement = 1.0 - float(np.mean(wrong[~printed.mask_independent()]))
+    head = (
+        f"the printed code differs from the regenerated one in its data: {printed.describe()} on both, "
+        f"but only {data_agreement:.0%} of the data modules match"
+    )
+    if data_agreement <= RANDOM_DATA_AGREEMENT:
+        return f"{head} (the payload encoded otherwise, by another QR generator?)"
+    h = wrong.shape[0] // 2
+    quarters = {
+        "top-left": wrong[:h, :h],
+        "top-right": wrong[:h, h:],
+        "bottom-left": wrong[h:, :h],
+        "bottom-right": wrong[h:, h:],
+    }
+    worst = max(quarters, key=lambda k: int(quarters[k].sum()))
+    share = quarters[worst].sum() / max(int(wrong.sum()), 1)
+    return (
+        f"{head}, {share:.0%} of the wrong ones in the symbol's {worst} quarter (blur, glare or damage "
+        "there, or the decoder's corners off?)"
+    )
 
 
 def _same_place(a: DecodedSymbol, b: DecodedSymbol) -> bool:

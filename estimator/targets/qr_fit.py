@@ -114,39 +114,61 @@ def _bilinear(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
     ).reshape(uv.shape[:-1])
 
 
-def module_agreement(gray: np.ndarray, corners_px: np.ndarray, modules: np.ndarray) -> float:
-    """Fraction of module centres whose dark/light state in the image matches ``modules``.
+def sample_modules(gray: np.ndarray, corners_px: np.ndarray, n: int) -> np.ndarray | None:
+    """(n, n) bool, True where the module centre reads dark, row 0 at the symbol's top; None if
+    any module centre is outside the image.
 
-    corners_px: (4, 2) corners in the marker's order. modules: (n, n) bool, True = dark,
-    row 0 at the symbol's top. The threshold is halfway between the 10th and 90th
-    percentiles of the sampled values. Returns 0.0 if any module centre is outside the image.
+    corners_px: (4, 2) corners in the marker's order. The threshold is halfway between the
+    10th and 90th percentiles of the sampled values.
     """
-    n = modules.shape[0]
     centres = (np.arange(n) + 0.5) / n
     ab = np.stack(np.meshgrid(centres, centres, indexing="xy"), axis=-1).reshape(-1, 2)
     samples = _bilinear(gray, apply_homography(homography_from_corners(corners_px), ab))
     if not np.all(np.isfinite(samples)):
-        return 0.0
+        return None
     lo, hi = np.percentile(samples, [10, 90])
-    dark = samples < 0.5 * (lo + hi)
-    return float(np.mean(dark == modules.reshape(-1)))
+    return (samples < 0.5 * (lo + hi)).reshape(n, n)
 
 
-def orient_corners(gray: np.ndarray, corners_px: np.ndarray, modules: np.ndarray) -> tuple[np.ndarray, float]:
+def module_agreement(
+    gray: np.ndarray, corners_px: np.ndarray, modules: np.ndarray, where: np.ndarray | None = None
+) -> float:
+    """Fraction of module centres whose dark/light state in the image matches ``modules``.
+
+    corners_px: (4, 2) corners in the marker's order. modules: (n, n) bool, True = dark,
+    row 0 at the symbol's top. where: (n, n) bool, the modules to count (default all).
+    Returns 0.0 if any module centre is outside the image.
+    """
+    dark = sample_modules(gray, corners_px, modules.shape[0])
+    if dark is None:
+        return 0.0
+    same = dark == modules
+    return float(np.mean(same if where is None else same[where]))
+
+
+def orient_corners(
+    gray: np.ndarray, corners_px: np.ndarray, modules: np.ndarray, where: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """Reorder four corners (any start, either winding) into the marker's order.
 
     Orderings are tried as given first; the first with agreement >= CLEAR_AGREEMENT wins,
-    else the best of all 8.
+    else the best of all 8. where: (n, n) bool, the modules that count (default all).
     Returns the (4, 2) reordered corners and the module agreement of the best ordering.
     """
-    corners_px = np.asarray(corners_px, dtype=np.float64)
+    orderings = corner_orderings(corners_px)
     scores = []
-    for order in _ORDERINGS:
-        scores.append(module_agreement(gray, corners_px[order], modules))
+    for corners in orderings:
+        scores.append(module_agreement(gray, corners, modules, where))
         if scores[-1] >= CLEAR_AGREEMENT:
             break
     best = int(np.argmax(scores))
-    return corners_px[_ORDERINGS[best]], scores[best]
+    return orderings[best], scores[best]
+
+
+def corner_orderings(corners_px: np.ndarray) -> list[np.ndarray]:
+    """The 8 ways (4 starts x 2 windings) four (4, 2) corners can be listed, as given first."""
+    corners_px = np.asarray(corners_px, dtype=np.float64)
+    return [corners_px[order] for order in _ORDERINGS]
 
 
 @functools.lru_cache(maxsize=256)
@@ -198,8 +220,8 @@ def fit_marker(
     px_per_module = int(np.clip(round(side_px / n), 2, 3))
     template = _template(modules.tobytes(), n, px_per_module)
     q = TEMPLATE_QUIET_MODULES
-    if not fits_in_image(corners_px, q / n, gray.shape):
-        raise MarkerFitError("the marker or its quiet zone is partly outside the image")
+    if not fits_in_image(corners_px, 0.0, gray.shape):
+        raise MarkerFitError("the code itself (not only its quiet zone) is partly outside the image")
     # Symbol coordinates -> template pixels: the symbol spans [q*s - 0.5, (q+n)*s - 0.5].
     S_ab_to_tpl = np.array(
         [
@@ -230,8 +252,8 @@ def fit_marker(
     moved = float(np.abs(refined - corners_px).max())
     if moved > max(3.0, 0.15 * side_px):
         raise MarkerFitError(f"code alignment moved a corner by {moved:.1f} px from the decoder's")
-    if not fits_in_image(refined, q / n, gray.shape):
-        raise MarkerFitError("the fitted marker's quiet zone leaves the image")
+    if not fits_in_image(refined, 0.0, gray.shape):
+        raise MarkerFitError("the fitted code leaves the image")
     noise_cov, sigma = _corner_covariance(roi, H_roi_tpl, template, refined - roi_origin)
     J_center = point_jacobian_wrt_corners(refined, np.array([[0.5, 0.5]]))[0]
     return MarkerFit(
