@@ -25,7 +25,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import pose_minus
@@ -63,6 +63,8 @@ VCE_COST_TOLERANCE = 1e-7
 # estimator.solve.fit_check.BAD_FIT). White noise above the declared level triggers it too; the
 # significance test then fixes the groups it does not need.
 MISFIT_SCALE = 1.5
+# ... and the flange poses when, besides, their chi-square is this improbable.
+ARM_MISFIT_PROBABILITY = 1e-3
 # Learning stops when no level changes by more than this fraction in an iteration.
 LEVEL_TOLERANCE = 0.003
 # Where the declared robot pose noise is zero (exact poses), learning starts from this floor.
@@ -288,8 +290,9 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
     final, kept, tried, theta_covariance, consider = first, (), (), None, None
     ratios_after, chi2_dof_after = None, None
-    if _misfit(problem, first.levels, robot):
-        tried = available_groups(problem)
+    camera_misfit, arm_misfit = _misfits(problem, first, robot)
+    if camera_misfit or arm_misfit:
+        tried = available_groups(problem, arm_misfit)
         final, kept, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
         if kept:
             ratios_after, chi2_dof_after = _declared_fit(final.levels, declared, robot, final.factors)
@@ -325,17 +328,24 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     )
 
 
-def _misfit(problem: CalibrationProblem, levels: NoiseLevels, robot: RobotPoseNoise) -> bool:
+def _misfits(problem: CalibrationProblem, first: _Pass, robot: RobotPoseNoise) -> tuple[bool, bool]:
     """Whether the declared model fits worse than MISFIT_SCALE times its noise: the corners or the
-    depths, or, when the problem knows the arm's kinematics (self-calibration can correct them),
-    the flange poses (robot: the level learning started from)."""
-    if max(levels.pixel_scale, levels.depth_scale) > MISFIT_SCALE:
-        return True
-    arm = max(
-        levels.robot.translation_sigma_m / robot.translation_sigma_m,
-        levels.robot.rotation_sigma_rad / robot.rotation_sigma_rad,
-    )
-    return problem.kinematics is not None and arm > MISFIT_SCALE
+    depths; the flange poses, when the problem knows the arm's kinematics (self-calibration can
+    correct them), and then only where their chi-square at the level learning started from (robot)
+    is beyond ARM_MISFIT_PROBABILITY (a handful of views has few flange residuals)."""
+    levels = first.levels
+    camera = max(levels.pixel_scale, levels.depth_scale) > MISFIT_SCALE
+    arm = False
+    for name, start in (
+        ("robot_translation", robot.translation_sigma_m),
+        ("robot_rotation", robot.rotation_sigma_rad),
+    ):
+        if name in first.factors:
+            squares, redundancy = first.factors[name]
+            learned = _sigma(levels, name)
+            at_start = squares * (learned / start) ** 2
+            arm |= learned > MISFIT_SCALE * start and chi2.sf(at_start, redundancy) < ARM_MISFIT_PROBABILITY
+    return camera, problem.kinematics is not None and arm
 
 
 def _self_calibrate(
