@@ -172,7 +172,7 @@ def test_the_dataset_names_the_arm_its_poses_come_from(metadata: dict, expected:
 @pytest.mark.slow
 def test_the_realistic_cell_is_calibrated_honestly(tmp_path: Path) -> None:
     """The realistic scenario rendered (seed 0) and calibrated as `hec calibrate D --method all`
-    does: ekf 0.54 mm (NEES 10), OpenCV's Park 5.1 mm. Without the arm's kinematics in
+    does: ekf 0.79 mm (NEES 9.3), OpenCV's Park 4.9 mm. Without the arm's kinematics in
     self-calibration it was 1.87 mm, NEES 22.5; before any self-calibration 3.2 mm."""
     out = simulate(
         load_scenario(models_dir() / "scenarios" / "realistic.toml"), tmp_path / "d", 0, progress=False
