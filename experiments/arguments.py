@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 
 DPI_RANGE = (72.0, 2400.0)
 
@@ -19,14 +20,19 @@ def seed(text: str) -> int:
     return value
 
 
+SIGMA_MAX = 1e4
+
+
 def non_negative(text: str) -> float:
-    """A finite number >= 0."""
+    """A 1-sigma, 0 to SIGMA_MAX (mm or degrees: past any arm's error, and far from overflowing)."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}") from None
     if not (math.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    if value > SIGMA_MAX:
+        raise argparse.ArgumentTypeError(f"must be at most {SIGMA_MAX:g}, got {text!r}")
     return value
 
 
@@ -40,3 +46,22 @@ def dpi(text: str) -> float:
     if not lo <= value <= hi:
         raise argparse.ArgumentTypeError(f"must be {lo:g} to {hi:g} dots per inch, got {text!r}")
     return value
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP (a batch system, `timeout`, a closed terminal): the command stops as on
+    Ctrl-C, so its clean-up runs, and hec exits with 128 + the signal number."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+def raise_terminated(signum: int, frame: object) -> None:
+    """A signal handler: stop the command as Ctrl-C does."""
+    raise Terminated(signum)
+
+
+def interrupted_exit_code(exc: KeyboardInterrupt) -> int:
+    """128 + the signal that stopped the command (130 for Ctrl-C, 143 for SIGTERM, 129 for SIGHUP)."""
+    return 128 + (exc.signum if isinstance(exc, Terminated) else signal.SIGINT)

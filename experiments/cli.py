@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
@@ -155,8 +156,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _stop_on_termination() -> dict:
+    """SIGTERM and SIGHUP raise Terminated, unless their disposition is not the default (a caller
+    that ignores SIGHUP, as nohup does, keeps it ignored). Returns the handlers replaced."""
+    replaced = {}
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            if signal.getsignal(signum) == signal.SIG_DFL:
+                replaced[signum] = signal.signal(signum, arguments.raise_terminated)
+        except ValueError:  # not the main thread (main() called from a thread): leave signals alone
+            break
+    return replaced
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    replaced = _stop_on_termination()
+    try:
+        return _run(args)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or Terminated, where the command has no own message
+        print(f"\nhec: interrupted ({exc or 'Ctrl-C'}); {args.command} did not finish", file=sys.stderr)
+        return arguments.interrupted_exit_code(exc)
+    finally:
+        for signum, handler in replaced.items():
+            signal.signal(signum, handler)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         if args.command == "board":
             from experiments.printable import write_board
@@ -168,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
             from experiments.detection import run_detect
 
             passes = tuple(p.strip() for p in args.passes.split(",") if p.strip())
+            if not passes:
+                raise ValueError(f"--passes {args.passes!r}: give at least one decoding pass, e.g. zxing@1")
             run_detect(args.dataset, args.overlay, passes, args.quiet)
             return 0
         if args.command == "calibrate":

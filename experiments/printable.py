@@ -3,12 +3,14 @@ definition of what was printed (every marker's mask stated)."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
 import numpy as np
 from PIL import Image
 
+from estimator.io.files import write_atomic
 from estimator.targets.board import BoardDefinition, board_image, find_board, save_board
 
 SCALE_BAR_M = 0.1
@@ -60,16 +62,23 @@ def printable_board(board: BoardDefinition, dpi: float) -> np.ndarray:
 
 
 def save_printable_board(board: BoardDefinition, path: str | Path, dpi: float = 300.0) -> Path:
-    """Write the sheet as .png or .pdf with its DPI recorded, so it prints at true scale."""
+    """Write the sheet as .png or .pdf with its DPI recorded, so it prints at true scale (through a
+    temporary file and a rename: an interruption leaves no half-written sheet)."""
     path = Path(path)
+    return write_atomic(path, _encoded_sheet(board, path, dpi))
+
+
+def _encoded_sheet(board: BoardDefinition, path: Path, dpi: float) -> bytes:
+    """The sheet as the bytes of the PNG or PDF file path names."""
     if path.suffix.lower() not in (".png", ".pdf"):
         raise ValueError(f"{path}: choose a .png or .pdf file name")
     image = Image.fromarray(printable_board(board, dpi), mode="L")
+    buffer = io.BytesIO()
     if path.suffix.lower() == ".pdf":
-        image.save(path, "PDF", resolution=dpi)
+        image.save(buffer, "PDF", resolution=dpi)
     else:
-        image.save(path, "PNG", dpi=(dpi, dpi))
-    return path
+        image.save(buffer, "PNG", dpi=(dpi, dpi))
+    return buffer.getvalue()
 
 
 def write_board(name: str, out: Path, dpi: float, definition: Path | None = None) -> list[str]:
@@ -81,8 +90,15 @@ def write_board(name: str, out: Path, dpi: float, definition: Path | None = None
     source = Path(name) if Path(name).is_file() else None
     if source is not None and source.resolve() == definition.resolve():
         raise ValueError(f"{definition}: that is the board file being printed; choose --definition")
-    path = save_printable_board(board, out, dpi)
+    sheet = _encoded_sheet(board, out, dpi)  # the slow part, before anything is written
+    new_definition = not definition.exists()
     save_board(board.pinned(), definition)
+    try:
+        path = write_atomic(out, sheet)
+    except BaseException:
+        if new_definition:
+            definition.unlink(missing_ok=True)  # no definition of a sheet that was not written
+        raise
     return [
         f"wrote {path} at {dpi:g} dpi: print at 100% scale and check the 100 mm bar",
         f"wrote {definition}: the definition of this print (each marker's QR version, error correction "

@@ -80,6 +80,8 @@ def simulate(
     in dataset.json with their reason. ``seed`` drives every noise model: the true cell from
     default_rng(seed), each capture from sim.noise.waypoint_rng(seed, waypoint index).
     """
+    if Path(out_dir).exists() and not Path(out_dir).is_dir():  # --force replaces a dataset, not a file
+        raise FileExistsError(f"{out_dir} is a file, not a dataset folder; it is not replaced")
     waypoints = scenario_waypoints(scenario)
     rng = np.random.default_rng(seed)
     cell = SimCell(scenario, rng)

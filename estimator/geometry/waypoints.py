@@ -149,6 +149,8 @@ def read_waypoint_file(path: str | Path) -> list[Waypoint]:
         lines = [line for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
     except FileNotFoundError:
         raise WaypointFileError(f"{path}: waypoint file not found") from None
+    except UnicodeDecodeError as exc:
+        raise WaypointFileError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
     reader = csv.DictReader(lines)
     rows = list(reader)
     header = set(reader.fieldnames or ())
@@ -162,6 +164,11 @@ def read_waypoint_file(path: str | Path) -> list[Waypoint]:
         )
     waypoints = []
     for i, row in enumerate(rows):
+        if None in row:  # csv.DictReader keeps the values past the header under None
+            raise WaypointFileError(
+                f"{path}: waypoint {i} (data row {i + 1}): {len(reader.fieldnames) + len(row[None])} values, "
+                f"the header has {len(reader.fieldnames)} columns"
+            )
         try:
             values = np.array([float(row[c]) for c in columns])
         except (TypeError, ValueError):

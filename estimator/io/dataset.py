@@ -3,19 +3,17 @@
 One format serves the simulator, the real cell and imports. A dataset is a
 folder a person can open without this project::
 
-    dataset.json        format, version, source, frame count, camera intrinsics,
-                        depth scale, the depth noise model ('depth_noise', see
-                        estimator.observe.depth.DepthNoiseModel; optional), the noise of the
-                        reported flange poses ('robot_pose_noise': translation_sigma_m,
-                        rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional),
-                        the arm whose nominal kinematics the joints are read with ('robot_model',
-                        'ur5' or 'ur5e'; optional, a simulation's is its scenario's robot) and
-                        (simulation) seed, scenario, skipped waypoints
+    dataset.json        format, version, source, frame count, camera intrinsics, depth scale, the depth noise
+                        model ('depth_noise', see estimator.observe.depth.DepthNoiseModel; optional), the
+                        noise of the reported flange poses ('robot_pose_noise': translation_sigma_m,
+                        rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional), the arm
+                        whose nominal kinematics the joints are read with ('robot_model', 'ur5' or 'ur5e';
+                        optional, a simulation's is its scenario's robot) and (simulation) seed, scenario,
+                        skipped waypoints
     board.json          the board definition (hec-board v1)
-    frames.csv          one row a frame: frame, time_s, rgb, depth, the reported
-                        T_base_flange as x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad;
-                        a recorded session adds waypoint (the waypoint's index) and
-                        depth_samples (its image, or empty)
+    frames.csv          one row a frame: frame, time_s, rgb, depth, the reported T_base_flange as
+                        x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad; a recorded session adds waypoint
+                        (the waypoint's index) and depth_samples (its image, or empty)
     rgb/NNNNNN.png      colour, 8-bit RGB
     depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
     depth_samples/NNNNNN.png  optional, 8-bit: valid depth samples averaged per pixel
@@ -24,11 +22,10 @@ folder a person can open without this project::
     detections.json     optional cache written by `hec detect` (estimator.observe.observations)
     overlay/NNNNNN.png  optional detection pictures written by `hec detect --overlay`
 
-Depth is aligned to the colour image and shares its intrinsics. A rendered
-dataset (DatasetWriter) is written into a temporary sibling folder and renamed
-into place when it is complete, so a failed run never leaves a folder that looks
-finished. A recorded session (DatasetRecorder) is written in place frame by
-frame, so an interruption keeps every frame captured before it; dataset.json
+Depth is aligned to the colour image and shares its intrinsics. A rendered dataset (DatasetWriter)
+is written into a temporary sibling folder and renamed into place when it is complete, so a failed
+run never leaves a folder that looks finished. A recorded session (DatasetRecorder) is written in
+place frame by frame, so an interruption keeps every frame captured before it; dataset.json
 'recording' says whether it is 'in progress', 'interrupted' or 'complete'.
 """
 
@@ -483,6 +480,10 @@ def _read_frames(path: Path) -> list[dict]:
         for line, raw in enumerate(reader, start=2):
             try:
                 values = [float(raw[c]) for c in FRAME_COLUMNS[4:]]
+                if not np.all(np.isfinite([*values, float(raw["time_s"])])):
+                    raise DatasetError(f"{path}: line {line}: values must be finite")
+                if int(raw["frame"]) != len(rows):
+                    raise DatasetError(f"{path}: line {line}: frame {raw['frame']}, expected {len(rows)}")
                 rows.append(
                     {
                         "frame": int(raw["frame"]),

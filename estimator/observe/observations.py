@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import os
 from collections.abc import Callable
 from dataclasses import Field, dataclass, field, fields, replace
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics, pixel_rays
 from estimator.io.dataset import Dataset, DatasetError, Frame
+from estimator.io.files import write_atomic
 from estimator.io.jsonfile import read_json_object
 from estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
 from estimator.targets.detection import BLURRED_SHARPNESS, MarkerDetection, Rejection
@@ -284,11 +284,7 @@ def save_observations(
             for o in observations
         ],
     }
-    path = root / CACHE_FILE
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    tmp.write_text(json.dumps(data))
-    tmp.replace(path)
-    return path
+    return write_atomic(root / CACHE_FILE, json.dumps(data))
 
 
 def _opt(value: list | None) -> np.ndarray | None:

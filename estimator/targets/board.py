@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.io.files import write_atomic
 from estimator.io.jsonfile import read_json_object
 from estimator.io.models import models_dir
 from estimator.targets.qr_symbol import ERROR_CORRECTION, SymbolSpec
@@ -299,11 +300,7 @@ def board_image(board: BoardDefinition, px_per_m: float, supersample: int = 4) -
 
 def save_board(board: BoardDefinition, path: str | Path) -> Path:
     """Write a board definition file (through a temporary name, so no half-written file is left)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(board.to_dict(), indent=2) + "\n")
-    tmp.replace(path)
-    return path
+    return write_atomic(Path(path), json.dumps(board.to_dict(), indent=2) + "\n")
 
 
 def find_board(name: str, base_dir: Path = Path(".")) -> BoardDefinition:

@@ -169,7 +169,9 @@ def run_session(
             outcome.recorded += 1
             say(f"{head}: frame {index}" + (f" | {live.add(index, capture.frame)}" if live else ""))
     except SESSION_STOPS as exc:
-        outcome.stopped = str(exc) if not isinstance(exc, KeyboardInterrupt) else "stopped by Ctrl-C"
+        outcome.stopped = str(exc)
+        if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP ("stopped by SIGTERM")
+            outcome.stopped = str(exc) or "stopped by Ctrl-C"
     outcome.total = len(recorder.rows)
     session = {
         "waypoints": len(moves),

@@ -107,7 +107,10 @@ def _existing_waypoints(path: Path, append: bool) -> int:
         return 0
     if not append:
         raise FileExistsError(f"{path} exists; give --append to add waypoints to it, or another --out")
-    lines = _csv_lines(path.read_text())
+    try:
+        lines = _csv_lines(path.read_text())
+    except UnicodeDecodeError as exc:
+        raise WaypointFileError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
     if lines and next(csv.reader(lines[:1])) != list(HEADER):
         raise WaypointFileError(
             f"{path}: cannot append joint waypoints, its header is not {','.join(HEADER)}"
