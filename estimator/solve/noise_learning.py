@@ -290,7 +290,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
     final, kept, tried, theta_covariance, consider = first, (), (), None, None
     ratios_after, chi2_dof_after = None, None
-    camera_misfit, arm_misfit = _misfits(problem, first, robot)
+    camera_misfit, arm_misfit = _misfits(problem, first, declared_ratios, robot)
     if camera_misfit or arm_misfit:
         tried = available_groups(problem, arm_misfit)
         final, kept, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
@@ -328,11 +328,14 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     )
 
 
-def _misfits(problem: CalibrationProblem, first: _Pass, robot: RobotPoseNoise) -> tuple[bool, bool]:
+def _misfits(
+    problem: CalibrationProblem, first: _Pass, ratios: dict[str, float], robot: RobotPoseNoise
+) -> tuple[bool, bool]:
     """Whether the declared model fits worse than MISFIT_SCALE times its noise: the corners or the
     depths; the flange poses, when the problem knows the arm's kinematics (self-calibration can
-    correct them), and then only where their chi-square at the level learning started from (robot)
-    is beyond ARM_MISFIT_PROBABILITY (a handful of views has few flange residuals)."""
+    correct them), and then only where their chi-square at the level learning started from
+    (ratios, _declared_fit's; robot) is beyond ARM_MISFIT_PROBABILITY (a handful of views has few
+    flange residuals)."""
     levels = first.levels
     camera = max(levels.pixel_scale, levels.depth_scale) > MISFIT_SCALE
     arm = False
@@ -340,11 +343,10 @@ def _misfits(problem: CalibrationProblem, first: _Pass, robot: RobotPoseNoise) -
         ("robot_translation", robot.translation_sigma_m),
         ("robot_rotation", robot.rotation_sigma_rad),
     ):
-        if name in first.factors:
-            squares, redundancy = first.factors[name]
-            learned = _sigma(levels, name)
-            at_start = squares * (learned / start) ** 2
-            arm |= learned > MISFIT_SCALE * start and chi2.sf(at_start, redundancy) < ARM_MISFIT_PROBABILITY
+        if name in ratios:
+            redundancy = first.factors[name][1]
+            unlikely = chi2.sf(ratios[name] * redundancy, redundancy) < ARM_MISFIT_PROBABILITY
+            arm |= _sigma(levels, name) > MISFIT_SCALE * start and unlikely
     return camera, problem.kinematics is not None and arm
 
 
