@@ -1,11 +1,24 @@
-"""Running the `hec` command line inside a test."""
+"""Running the `hec` command line inside a test, and small scenarios for it."""
 
 from __future__ import annotations
 
 import contextlib
 import io
+from pathlib import Path
 
+from estimator.geometry.waypoints import write_waypoint_file
 from experiments.cli import main
+from sim.scenario import Scenario
+from sim.simulate import scenario_waypoints
+
+
+def scenario_file(folder: Path, views: int = 2, toml: str = "") -> Path:
+    """folder/scenario.toml: the first views default views (a waypoint file beside it) plus more
+    TOML."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_waypoint_file(folder / "waypoints.csv", scenario_waypoints(Scenario())[:views])
+    (folder / "scenario.toml").write_text('[trajectory]\nkind = "file"\nfile = "waypoints.csv"\n' + toml)
+    return folder / "scenario.toml"
 
 
 def run_hec(argv: list[str]) -> tuple[int, str, str]:

@@ -20,7 +20,6 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.geometry.waypoints import write_waypoint_file
 from estimator.observe.observations import CACHE_FILE, load_observations
 from estimator.observe.synthetic import SyntheticNoise
 from estimator.solve.calibration import MethodOptions
@@ -28,19 +27,16 @@ from estimator.solve.methods import run_method
 from estimator.solve.problem import build_problem
 from experiments.cli import main
 from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
-from sim.scenario import Scenario
-from sim.simulate import scenario_waypoints
-from tests.hec_cli import run_hec
+from tests.hec_cli import run_hec, scenario_file
 
 REPO = Path(__file__).resolve().parent.parent
 
 
-def _case(folder: Path, views: int = 2, toml: str = "") -> Path:
-    """A scenario of the first views default views (a waypoint file) plus more TOML."""
-    folder.mkdir(parents=True, exist_ok=True)
-    write_waypoint_file(folder / "waypoints.csv", scenario_waypoints(Scenario())[:views])
-    (folder / "scenario.toml").write_text('[trajectory]\nkind = "file"\nfile = "waypoints.csv"\n' + toml)
-    return folder / "scenario.toml"
+def _uncached_copy(dataset: Path, copy: Path) -> Path:
+    """A copy of dataset without its detections cache."""
+    shutil.copytree(dataset, copy)
+    (copy / CACHE_FILE).unlink(missing_ok=True)
+    return copy
 
 
 @contextlib.contextmanager
@@ -85,7 +81,9 @@ def _wait_for_partial(out: Path, process: subprocess.Popen) -> Path:
 
 def test_ctrl_c_during_simulate_is_a_message_and_leaves_nothing(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    process = _hec_process("simulate", "--out", str(out), "--scenario", str(_case(tmp_path, 4)), "--quiet")
+    process = _hec_process(
+        "simulate", "--out", str(out), "--scenario", str(scenario_file(tmp_path, 4)), "--quiet"
+    )
     _wait_for_partial(out, process)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=30)
@@ -95,14 +93,14 @@ def test_ctrl_c_during_simulate_is_a_message_and_leaves_nothing(tmp_path: Path) 
 
 
 def test_the_partial_folder_of_a_killed_simulate_is_removed_by_the_next_run(tmp_path: Path) -> None:
-    out, scenario = tmp_path / "out", _case(tmp_path, 4)
+    out, scenario = tmp_path / "out", scenario_file(tmp_path, 4)
     process = _hec_process("simulate", "--out", str(out), "--scenario", str(scenario), "--quiet")
     partial = _wait_for_partial(out, process)
     process.kill()
     process.communicate()
     assert partial.is_dir()
     code, _, err = run_hec(
-        ["simulate", "--out", str(out), "--scenario", str(_case(tmp_path / "one", 1)), "--quiet"]
+        ["simulate", "--out", str(out), "--scenario", str(scenario_file(tmp_path / "one", 1)), "--quiet"]
     )
     assert code == 0 and f"note: removed {partial}, left behind by a run that was killed" in err
     assert not partial.exists() and (out / "dataset.json").is_file()
@@ -113,7 +111,7 @@ def test_the_partial_folder_of_a_killed_simulate_is_removed_by_the_next_run(tmp_
 
 @pytest.mark.parametrize("fault", ["read-only", "full"])
 def test_simulate_on_a_file_system_that_cannot_take_it_is_a_message(tmp_path: Path, fault: str) -> None:
-    scenario = _case(tmp_path / "case")
+    scenario = scenario_file(tmp_path / "case")
     with _tmpfs(tmp_path / "fs", "300k", read_only=fault == "read-only") as fs:
         code, _, err = run_hec(["simulate", "--out", str(fs / "out"), "--scenario", str(scenario), "--quiet"])
         assert code == 2 and f"hec: error: cannot write {fs / 'out'}: " in err and "nothing written" in err
@@ -182,14 +180,14 @@ def test_a_binary_scenario_file_is_named(tmp_path: Path) -> None:
 
 
 def test_a_board_too_low_for_its_table_names_the_key(tmp_path: Path) -> None:
-    scenario = _case(tmp_path, 1, "[board]\ntranslation_m = [0.15, -1.44, 0.45]\n")
+    scenario = scenario_file(tmp_path, 1, "[board]\ntranslation_m = [0.15, -1.44, 0.45]\n")
     code, _, err = run_hec(["simulate", "--out", str(tmp_path / "out"), "--scenario", str(scenario)])
     assert code == 2 and "key 'board.translation_m': it puts the board 0.007 m above the floor" in err
     assert "table_leg" not in err and not (tmp_path / "out").exists()
 
 
 def test_markers_too_small_to_decode_are_warned_of(tmp_path: Path) -> None:
-    scenario = _case(tmp_path, 1, "[camera]\nfovy_deg = 110\n")
+    scenario = scenario_file(tmp_path, 1, "[camera]\nfovy_deg = 110\n")
     code, _, err = run_hec(
         ["simulate", "--out", str(tmp_path / "out"), "--scenario", str(scenario), "--quiet"]
     )
@@ -203,9 +201,7 @@ def test_markers_too_small_to_decode_are_warned_of(tmp_path: Path) -> None:
 def test_calibrate_says_which_frame_had_a_depth_image_of_another_size(
     default_dataset: Path, tmp_path: Path
 ) -> None:
-    copy = tmp_path / "copy"
-    shutil.copytree(default_dataset, copy)
-    (copy / CACHE_FILE).unlink(missing_ok=True)
+    copy = _uncached_copy(default_dataset, tmp_path / "copy")
     depth = cv2.imread(str(copy / "depth" / "000003.png"), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(copy / "depth" / "000003.png"), depth[::2, ::2])
     code, out, _ = run_hec(["calibrate", str(copy), "--method", "opencv-tsai", "--no-loo", "--quiet"])
@@ -216,9 +212,7 @@ def test_calibrate_says_which_frame_had_a_depth_image_of_another_size(
 def test_a_nan_corner_in_the_cache_names_the_file_and_calibrate_detects_again(
     default_dataset: Path, tmp_path: Path
 ) -> None:
-    copy = tmp_path / "copy"
-    shutil.copytree(default_dataset, copy)
-    (copy / CACHE_FILE).unlink(missing_ok=True)
+    copy = _uncached_copy(default_dataset, tmp_path / "copy")
     assert run_hec(["detect", str(copy), "--quiet"])[0] == 0
     cache = json.loads((copy / CACHE_FILE).read_text())
     cache["frames"][2]["markers"][0]["corners_px"][1][0] = float("nan")
@@ -248,8 +242,7 @@ def test_calibrate_on_a_read_only_dataset_detects_without_caching(
     default_dataset: Path, tmp_path: Path
 ) -> None:
     with _tmpfs(tmp_path / "fs", "40m") as fs:
-        shutil.copytree(default_dataset, fs / "ds")
-        (fs / "ds" / CACHE_FILE).unlink(missing_ok=True)
+        _uncached_copy(default_dataset, fs / "ds")
         subprocess.run(["mount", "-o", "remount,ro", str(fs)], check=True)
         code, out, err = run_hec(
             ["calibrate", str(fs / "ds"), "--method", "opencv-tsai", "--no-loo", "--quiet"]

@@ -15,20 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from estimator.geometry.waypoints import write_waypoint_file
 from experiments.cli import main
-from sim.scenario import Scenario
-from sim.simulate import scenario_waypoints
-from tests.hec_cli import run_hec
+from tests.hec_cli import run_hec, scenario_file
 
 REPO = Path(__file__).resolve().parent.parent
-
-
-def _case(folder: Path, views: int = 2, toml: str = "") -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    write_waypoint_file(folder / "waypoints.csv", scenario_waypoints(Scenario())[:views])
-    (folder / "scenario.toml").write_text('[trajectory]\nkind = "file"\nfile = "waypoints.csv"\n' + toml)
-    return folder / "scenario.toml"
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +26,9 @@ def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three simulated frames, detected."""
     root = tmp_path_factory.mktemp("fault_pass")
     out = root / "ds"
-    code, _, err = run_hec(["simulate", "--out", str(out), "--scenario", str(_case(root, 3)), "--quiet"])
+    code, _, err = run_hec(
+        ["simulate", "--out", str(out), "--scenario", str(scenario_file(root, 3)), "--quiet"]
+    )
     assert code == 0, err
     assert run_hec(["detect", str(out), "--quiet"])[0] == 0
     return out
@@ -66,7 +58,7 @@ def _wait_for(pattern: str, folder: Path, process: subprocess.Popen) -> None:
 
 @pytest.mark.parametrize("value", ["inf", "nan"])
 def test_a_scenario_value_that_is_not_finite_names_the_key(tmp_path: Path, value: str) -> None:
-    scenario = _case(tmp_path, toml=f"[noise.depth]\nsubpixel = {value}\n")
+    scenario = scenario_file(tmp_path, toml=f"[noise.depth]\nsubpixel = {value}\n")
     code, _, err = run_hec(
         ["simulate", "--out", str(tmp_path / "out"), "--scenario", str(scenario), "--quiet"]
     )
@@ -74,7 +66,7 @@ def test_a_scenario_value_that_is_not_finite_names_the_key(tmp_path: Path, value
 
 
 def test_a_waypoint_row_with_more_values_than_the_header_is_refused(tmp_path: Path) -> None:
-    scenario = _case(tmp_path)
+    scenario = scenario_file(tmp_path)
     lines = (tmp_path / "waypoints.csv").read_text().splitlines()
     (tmp_path / "waypoints.csv").write_text("\n".join([lines[0], lines[1] + ",0.5,extra", lines[2]]) + "\n")
     code, _, err = run_hec(
@@ -129,7 +121,9 @@ def test_sigterm_or_sighup_during_simulate_cleans_up_as_ctrl_c_does(
     tmp_path: Path, sig: signal.Signals, name: str
 ) -> None:
     out = tmp_path / "out"
-    process = _hec_process("simulate", "--out", str(out), "--scenario", str(_case(tmp_path, 4)), "--quiet")
+    process = _hec_process(
+        "simulate", "--out", str(out), "--scenario", str(scenario_file(tmp_path, 4)), "--quiet"
+    )
     _wait_for(".out.partial-*/rgb/*.png", tmp_path, process)
     process.send_signal(sig)
     _, err = process.communicate(timeout=30)
@@ -177,7 +171,7 @@ def test_simulate_force_does_not_replace_a_file_with_a_dataset(tmp_path: Path) -
             "--out",
             str(tmp_path / "out"),
             "--scenario",
-            str(_case(tmp_path, 1)),
+            str(scenario_file(tmp_path, 1)),
             "--force",
             "--quiet",
         ]
@@ -194,7 +188,7 @@ def test_detect_with_no_pass_names_the_option(small_dataset: Path) -> None:
 
 def test_sigterm_during_a_recording_keeps_its_frames_and_frees_the_lock(tmp_path: Path) -> None:
     out = tmp_path / "rec"
-    scenario = str(_case(tmp_path, 5))
+    scenario = str(scenario_file(tmp_path, 5))
     process = _hec_process("record", "--sim", "--scenario", scenario, "--out", str(out), "--yes", "--no-live")
     _wait_for("rec/rgb/000001.png", tmp_path, process)
     process.send_signal(signal.SIGTERM)
