@@ -1,7 +1,8 @@
 """Measurement-level synthetic observations: the truth projected, plus Gaussian noise.
 
-No rendering and no detector: corners are the true projections plus N(0, sigma^2)
-per coordinate, corner depths the true depth plus N(0, sigma(z)^2) each, and the
+No rendering and no detector: corners are the true projections (where the detector's
+homography fit puts them under lens distortion, estimator.geometry.marker_fit_bias) plus
+N(0, sigma^2) per coordinate, corner depths the true depth plus N(0, sigma(z)^2) each, and the
 reported flange poses the true ones perturbed as estimator.geometry.lie describes. The
 observations carry exactly the covariances the noise was drawn from, so an
 estimator's errors can be compared with the Cramer-Rao bound.
@@ -15,6 +16,7 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics, distort_normalized
 from estimator.geometry.lie import pose_plus
+from estimator.geometry.marker_fit_bias import marker_fit_bias
 from estimator.geometry.transforms import invert, transform_points
 from estimator.observe.depth import DepthNoiseModel
 from estimator.observe.observations import FrameObservations, MarkerObservation, camera_points
@@ -63,10 +65,13 @@ def synthetic_observations(
         obs = FrameObservations(i, float(i), reported)
         for marker_id in board.marker_ids:
             corners_base = transform_points(T_base_board, board.marker_corners(marker_id))
-            z_true = transform_points(T_cam_base, corners_base)[:, 2]
+            corners_cam = transform_points(T_cam_base, corners_base)
+            z_true = corners_cam[:, 2]
             if np.any(z_true <= 0):
                 continue
             corners = project(T_cam_base, corners_base, intrinsics)
+            if any(intrinsics.dist):
+                corners = corners + marker_fit_bias(corners_cam[None], intrinsics)[0][0]
             inside = (corners >= margin_px) & (
                 corners <= [intrinsics.width - 1 - margin_px, intrinsics.height - 1 - margin_px]
             )

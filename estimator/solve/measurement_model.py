@@ -4,7 +4,9 @@ A board corner c (board frame) seen in frame i:
 
     p_base = T_base_board @ c                 (board mode), or a landmark (landmark mode)
     p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
-    pixel  = project(p_cam)                   (K and OpenCV distortion)
+    pixel  = project(p_cam) + b               (K and OpenCV distortion; b: where the detector's
+                                               homography fit over the marker's distorted image
+                                               puts its corners, estimator.geometry.marker_fit_bias)
     depth  = exp(s) (depth_scale * p_cam.z + o + tx p_cam.x + ty p_cam.y)
              (s, o: problem.depth_bias, tx, ty: problem.depth_tilt, 0 unless self-calibrated)
 
@@ -21,6 +23,11 @@ import numpy as np
 
 from estimator.geometry.camera import distort_normalized
 from estimator.geometry.lie import pose_minus, pose_plus, pose_plus_jacobian, skew_rows
+from estimator.geometry.marker_fit_bias import (
+    MarkerFitBiasJacobians,
+    marker_fit_bias,
+    marker_fit_bias_jacobians,
+)
 from estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 
@@ -146,6 +153,10 @@ def predict_frame(
     p_flange = (p_base - t_F) @ R_F
     p_cam = (p_flange - t_X) @ R_X
     pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
+    distorted = any(problem.intrinsics.dist)
+    bias = marker_fit_bias(p_cam.reshape(-1, 4, 3), problem.intrinsics) if distorted else None
+    if bias is not None:
+        pixels = pixels + bias.reshape(-1, 2)
     scale = 1.0 if state.depth_scale is None else state.depth_scale
     gain = float(np.exp(problem.depth_bias[0]))
     tilt = problem.depth_tilt
@@ -162,30 +173,33 @@ def predict_frame(
         return FramePrediction(residual, np.empty((0, 0)), np.empty((0, 0)), pixels, depth, p_cam)
 
     P = len(p_cam)
+    fit = None
+    if distorted or camera_jacobian:
+        fit = marker_fit_bias_jacobians(p_cam.reshape(-1, 4, 3), problem.intrinsics, bias)
+    d_bias_d_cam = None if bias is None else fit.d_corners_cam
     RXt = R_X.T
     RXt_RFt = RXt @ R_F.T
+    n = state.dim
     # d p_cam / d (perturbations), each (P, 3, k)
-    d_cam_d_X = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
+    d_cam_d_state = np.zeros((P, 3, n))
+    d_cam_d_state[:, :, :6] = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
+    if state.T_base_board is not None:
+        d_base_d_B = np.concatenate(
+            [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ skew_rows(corners_board)], axis=2
+        )
+        d_cam_d_state[:, :, 6:12] = RXt_RFt @ d_base_d_B
+    else:
+        for j, row in enumerate(rows):
+            d_cam_d_state[j, :, 6 + 3 * row : 9 + 3 * row] = RXt_RFt
     d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
     # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
     d_depth = gain * np.array([tilt[0], tilt[1], scale])
     d_meas_d_cam = np.concatenate([d_pix, np.broadcast_to(d_depth, (P, 1, 3))], axis=1)
 
-    n = state.dim
-    J_state_points = np.zeros((P, 3, n))
-    J_state_points[:, :, :6] = d_meas_d_cam @ d_cam_d_X
-    d_meas_d_base = d_meas_d_cam @ RXt_RFt
-    if state.T_base_board is not None:
-        d_base_d_B = np.concatenate(
-            [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ skew_rows(corners_board)], axis=2
-        )
-        J_state_points[:, :, 6:12] = d_meas_d_base @ d_base_d_B
-    else:
-        for j, row in enumerate(rows):
-            J_state_points[j, :, 6 + 3 * row : 9 + 3 * row] = d_meas_d_base[j]
+    J_state_points = _through_camera_points(d_meas_d_cam, d_cam_d_state, d_bias_d_cam)
     if state.depth_scale is not None:
         J_state_points[:, 2, -1] = gain * p_cam[:, 2]
-    J_flange_points = d_meas_d_cam @ d_cam_d_F
+    J_flange_points = _through_camera_points(d_meas_d_cam, d_cam_d_F, d_bias_d_cam)
 
     J_state_rows, J_flange_rows = [], []
     for k, m in enumerate(markers):
@@ -199,7 +213,9 @@ def predict_frame(
         J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
     J_camera = J_shift = None
     if camera_jacobian:
-        J_camera, J_shift = _camera_jacobian(problem, state, markers, xy, xy_d, d_meas_d_base, depth, p_cam)
+        J_camera, J_shift = _camera_jacobian(
+            problem, state, markers, xy, xy_d, fit, d_bias_d_cam, d_meas_d_cam, RXt_RFt, depth, p_cam
+        )
     return FramePrediction(
         residual,
         np.concatenate(J_state_rows),
@@ -218,46 +234,66 @@ def _bend_shapes(problem: CalibrationProblem, corners_board: np.ndarray) -> np.n
     return 1.0 - (corners_board[:, :2] / half) ** 2
 
 
+def _through_camera_points(
+    d_meas_d_cam: np.ndarray, d_cam: np.ndarray, d_bias_d_cam: np.ndarray | None
+) -> np.ndarray:
+    """(P, 3, n) d(u, v, depth per point)/d(x) from d(u, v, depth)/d p_cam (P, 3, 3) and d p_cam/d(x)
+    (P, 3, n); d_bias_d_cam (M, 8, 12): the detector's corner bias moving with all four corners of
+    its marker (estimator.geometry.marker_fit_bias), None without distortion."""
+    J = d_meas_d_cam @ d_cam
+    if d_bias_d_cam is not None:
+        P, _, n = d_cam.shape
+        J[:, :2] += (d_bias_d_cam @ d_cam.reshape(-1, 12, n)).reshape(P, 2, n)
+    return J
+
+
 def _camera_jacobian(
     problem: CalibrationProblem,
     state: HandEyeState,
     markers: list,
     xy: np.ndarray,
     xy_d: np.ndarray,
-    d_meas_d_base: np.ndarray,
+    fit: MarkerFitBiasJacobians,
+    d_bias_d_cam: np.ndarray | None,
+    d_meas_d_cam: np.ndarray,
+    d_cam_d_base: np.ndarray,
     depth: np.ndarray,
     p_cam: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(m, 14) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
     depth log scale, depth offset, board bend x, board bend y, depth tilt x, depth tilt y), and
-    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y); depth (P,):
-    the predicted depths; p_cam (P, 3): the points in the camera frame."""
+    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y); fit: the
+    derivatives of the detector's corner bias, d_bias_d_cam: fit's d_corners_cam, None without
+    distortion (no bias to move); d_meas_d_cam (P, 3, 3): d(u, v, depth)/d p_cam; d_cam_d_base
+    (3, 3); depth (P,): the predicted depths; p_cam (P, 3): the points in the camera frame."""
     k = problem.intrinsics
     P = len(xy)
     J = np.zeros((P, 3, 16))  # per point: (u, v, depth) rows; the last two: the marker's shift
+    f = np.array([k.fx, k.fy])
     J[:, 0, 0], J[:, 1, 1] = xy_d[:, 0], xy_d[:, 1]
     J[:, 0, 2] = J[:, 1, 3] = 1.0
     r2 = np.sum(xy * xy, axis=1)
-    f = np.array([k.fx, k.fy])
     J[:, :2, 4] = xy * r2[:, None] * f
     J[:, :2, 5] = xy * (r2 * r2)[:, None] * f
+    J[:, :2, [0, 1, 4, 5]] += fit.d_camera.reshape(P, 2, 4)
     if state.T_base_board is not None:  # landmarks have no board to scale
         corners_board = np.concatenate([m.corners_board for m in markers])
         R_B = state.T_base_board[:3, :3]
         shapes = _bend_shapes(problem, corners_board)
-        d_normal = np.einsum("pij,j->pi", d_meas_d_base, R_B[:, 2])  # (P, 3): per metre along board z
+        normal = R_B[:, 2]
+        d_base = np.zeros((P, 3, 6))  # base-frame motion per unit of scale x, y, bend x, y, shift x, y
         for axis in (0, 1):
-            d_base = R_B[:, axis][None, :] * corners_board[:, axis : axis + 1]  # (P, 3)
             # scaling moves the corners in the plane, and so along the bend (d shape / d log scale)
             d_bend = -2.0 * problem.board_bend_m[axis] * (1.0 - shapes[:, axis])
-            J[:, :, 6 + axis] = np.einsum("pij,pj->pi", d_meas_d_base, d_base) + d_bend[:, None] * d_normal
-            J[:, :, 10 + axis] = shapes[:, axis : axis + 1] * d_normal
+            d_base[:, :, axis] = R_B[:, axis] * corners_board[:, axis : axis + 1] + np.outer(d_bend, normal)
+            d_base[:, :, 2 + axis] = np.outer(shapes[:, axis], normal)
             # a shift moves the corners in the plane, and so along the bend
             half = 0.5 * problem.board.size_m[axis]
             d_shift_bend = -2.0 * problem.board_bend_m[axis] * corners_board[:, axis] / half**2
-            J[:, :, 14 + axis] = (
-                np.einsum("pij,j->pi", d_meas_d_base, R_B[:, axis]) + d_shift_bend[:, None] * d_normal
-            )
+            d_base[:, :, 4 + axis] = R_B[:, axis] + np.outer(d_shift_bend, normal)
+        J[:, :, [6, 7, 10, 11, 14, 15]] = _through_camera_points(
+            d_meas_d_cam, d_cam_d_base @ d_base, d_bias_d_cam
+        )
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
