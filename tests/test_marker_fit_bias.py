@@ -8,7 +8,12 @@ import pytest
 from scipy.optimize import least_squares
 
 from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.marker_fit_bias import GRID_SIDE, marker_fit_bias, marker_fit_bias_jacobians
+from estimator.geometry.marker_fit_bias import (
+    QUADRATURE_AB,
+    QUADRATURE_WEIGHTS,
+    marker_fit_bias,
+    marker_fit_bias_jacobians,
+)
 from estimator.geometry.transforms import invert, transform_points
 from estimator.targets.qr import QRDetector
 from sim.cell import SimCell
@@ -42,22 +47,22 @@ def _project(points_cam: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray
 
 
 def test_bias_is_the_least_squares_homography_fit_in_symbol_coordinates() -> None:
-    """Against the exact least-squares homography from the distorted grid to the symbol (its error
-    measured in symbol coordinates, as the module's fit), solved to convergence by scipy: the
-    module's one linear step is within 1 % of its corner shifts."""
+    """Against the exact weighted least-squares homography from the distorted quadrature points to
+    the symbol (its error measured in symbol coordinates, as the module's fit), solved to
+    convergence by scipy: the module's one linear step is within 1 % of its corner shifts."""
     rng = np.random.default_rng(0)
     markers = _markers(rng, 20)
     bias = marker_fit_bias(markers, LENS).reshape(-1, 4, 2)
-    side = np.linspace(0.0, 1.0, GRID_SIDE)
-    ab = np.column_stack([np.tile(side, GRID_SIDE), np.repeat(side, GRID_SIDE)])
+    ab, weight = QUADRATURE_AB, np.sqrt(QUADRATURE_WEIGHTS)[:, None]
     corners_ab = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     for corners, b in zip(markers, bias, strict=True):
-        grid = corners[0] + ab[:, :1] * (corners[1] - corners[0]) + ab[:, 1:] * (corners[3] - corners[0])
-        grid_px = _project(grid, LENS)
-        start, _ = cv2.findHomography(grid_px, ab, 0)
+        points = corners[0] + ab[:, :1] * (corners[1] - corners[0]) + ab[:, 1:] * (corners[3] - corners[0])
+        points_px = _project(points, LENS)
+        start, _ = cv2.findHomography(points_px, ab, 0)
 
-        def residual(h: np.ndarray, grid_px: np.ndarray = grid_px) -> np.ndarray:
-            return (cv2.perspectiveTransform(grid_px[None], np.append(h, 1.0).reshape(3, 3))[0] - ab).ravel()
+        def residual(h: np.ndarray, points_px: np.ndarray = points_px) -> np.ndarray:
+            mapped = cv2.perspectiveTransform(points_px[None], np.append(h, 1.0).reshape(3, 3))[0]
+            return (weight * (mapped - ab)).ravel()
 
         h = least_squares(residual, (start / start[2, 2]).ravel()[:8], xtol=1e-15, ftol=1e-15, gtol=1e-15).x
         fitted = cv2.perspectiveTransform(corners_ab[None], np.linalg.inv(np.append(h, 1.0).reshape(3, 3)))[0]

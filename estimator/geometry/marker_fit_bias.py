@@ -8,12 +8,13 @@ by about 0.05 px RMS, four times the detector's noise floor, and always in the s
 a given place in the image, so that a self-calibrated k2 came out 0.03 off. The measurement model
 therefore predicts the detector's corners: the distorted corners plus this bias.
 
-The fit is least squares over a GRID_SIDE x GRID_SIDE grid of the marker's symbol coordinates,
-compared in symbol coordinates as the template alignment compares in the template's frame, with
-uniform weights standing in for the alignment's (a code has edges all over it). The distorted
-grid is mapped back through the homography through the distorted corners; what is left is
-~1e-3 of the symbol, so one linear step from that homography gives the fit (within 0.5 % of the
-exact least-squares fit's corner shifts).
+The fit is least squares over the marker's area with uniform weight (standing in for the
+alignment's: a code has edges all over it), compared in symbol coordinates as the template
+alignment compares in the template's frame. The integral is a QUADRATURE_SIDE x QUADRATURE_SIDE
+Gauss-Legendre quadrature (within 2 % of a 61 x 61 grid's fit; a uniform 9 x 9 grid was 12 % off).
+The distorted points are mapped back through the homography through the distorted corners; what
+is left is ~1e-3 of the symbol, so one linear step from that homography gives the fit (within
+0.5 % of the exact least-squares fit's corner shifts).
 
 Symbol coordinates (a, b) as in estimator.targets.qr_fit: corners (0, 0), (1, 0), (1, 1), (0, 1).
 """
@@ -26,14 +27,17 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics
 
-GRID_SIDE = 9
+QUADRATURE_SIDE = 4
 # Forward-difference steps of the derivatives: normalised image coordinates of a corner; pixels of
 # focal length and units of distortion coefficient.
 NORMALISED_STEP = 1e-7
 CAMERA_STEPS = (1e-3, 1e-3, 1e-6, 1e-6)  # fx, fy, k1, k2
 
-_SIDE = np.linspace(0.0, 1.0, GRID_SIDE)
-_GRID_AB = np.column_stack([np.tile(_SIDE, GRID_SIDE), np.repeat(_SIDE, GRID_SIDE)])  # (G, 2)
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(QUADRATURE_SIDE)
+# The quadrature's points (G, 2) in symbol coordinates and their weights (G,), summing to 1.
+QUADRATURE_AB = np.column_stack([np.tile(_NODES, QUADRATURE_SIDE), np.repeat(_NODES, QUADRATURE_SIDE)])
+QUADRATURE_AB = 0.5 * (QUADRATURE_AB + 1.0)
+QUADRATURE_WEIGHTS = 0.25 * np.outer(_WEIGHTS, _WEIGHTS).ravel()
 _CORNERS_AB = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 
 
@@ -61,9 +65,8 @@ def _apply(H: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def _fit_to_corners() -> np.ndarray:
-    """(8, 2G): corner shifts (symbol units) of the least-squares homography through grid
-    displacements (symbol units) near the identity, rows (a0, b0, ..., b3)."""
-    a, b = _GRID_AB[:, 0], _GRID_AB[:, 1]
+    """(8, 2G): corner shifts (symbol units) of the weighted least-squares homography through
+    displacements of the quadrature's points (symbol units) near the identity, rows (a0, b0, ..., b3)."""
 
     def tangent(ab: np.ndarray) -> np.ndarray:  # d(point)/d(h) at the identity, (2N, 8)
         a, b = ab[:, 0], ab[:, 1]
@@ -72,8 +75,9 @@ def _fit_to_corners() -> np.ndarray:
         dv = np.stack([zero, zero, zero, a, b, one, -a * b, -b * b], axis=1)
         return np.stack([du, dv], axis=1).reshape(-1, 8)
 
-    J_grid = tangent(np.column_stack([a, b]))
-    return tangent(_CORNERS_AB) @ np.linalg.pinv(J_grid)
+    J = tangent(QUADRATURE_AB)
+    W = np.repeat(QUADRATURE_WEIGHTS, 2)[:, None]
+    return tangent(_CORNERS_AB) @ np.linalg.solve(J.T @ (W * J), (W * J).T)
 
 
 _FIT_TO_CORNERS = _fit_to_corners()
@@ -114,9 +118,9 @@ def _bias(corners_xy: np.ndarray, camera: np.ndarray) -> np.ndarray:
     """marker_fit_bias from the corners' pinhole normalised coordinates (M, 4, 2) and each
     marker's camera (M, 7) (see _camera)."""
     M = len(corners_xy)
-    grid_px = _distorted_pixels(_apply(_homographies_through(corners_xy), _GRID_AB), camera)
+    points_px = _distorted_pixels(_apply(_homographies_through(corners_xy), QUADRATURE_AB), camera)
     H = _homographies_through(_distorted_pixels(corners_xy, camera))
-    displacement = _apply(np.linalg.inv(H), grid_px) - _GRID_AB  # symbol units, (M, G, 2)
+    displacement = _apply(np.linalg.inv(H), points_px) - QUADRATURE_AB  # symbol units, (M, G, 2)
     shift = (displacement.reshape(M, -1) @ _FIT_TO_CORNERS.T).reshape(M, 4, 2)
     # symbol units -> pixels through H's derivative at each corner
     w = H[:, 2:3, 0] * _CORNERS_AB[:, 0] + H[:, 2:3, 1] * _CORNERS_AB[:, 1] + 1.0  # (M, 4)
