@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 
 DPI_RANGE = (72.0, 2400.0)
 
@@ -46,22 +45,3 @@ def dpi(text: str) -> float:
     if not lo <= value <= hi:
         raise argparse.ArgumentTypeError(f"must be {lo:g} to {hi:g} dots per inch, got {text!r}")
     return value
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP (a batch system, `timeout`, a closed terminal): the command stops as on
-    Ctrl-C, so its clean-up runs, and hec exits with 128 + the signal number."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"stopped by {signal.Signals(signum).name}")
-        self.signum = signum
-
-
-def raise_terminated(signum: int, frame: object) -> None:
-    """A signal handler: stop the command as Ctrl-C does."""
-    raise Terminated(signum)
-
-
-def interrupted_exit_code(exc: KeyboardInterrupt) -> int:
-    """128 + the signal that stopped the command (130 for Ctrl-C, 143 for SIGTERM, 129 for SIGHUP)."""
-    return 128 + (exc.signum if isinstance(exc, Terminated) else signal.SIGINT)

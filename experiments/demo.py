@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator.geometry.transforms import rpy_from_transform, xyz_quat_from_transform
-from experiments import arguments
+from experiments import interrupts
 
 IDEAL_CELL_NOTE = (
     "note: the default scenario is the ideal cell (exact kinematics, camera and board); "
@@ -45,7 +45,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         return 2
     except KeyboardInterrupt as exc:
         print(f"\ninterrupted: nothing written to {args.out}", file=sys.stderr)
-        return arguments.interrupted_exit_code(exc)
+        return interrupts.interrupted_exit_code(exc)
     _print_simulation(result, scenario.mount.transform())
     if args.command == "demo":
         _demo_detect_and_calibrate(result.out_dir)

@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.io.dataset import Dataset, Frame, load_dataset
+from estimator.io.png import write_png
 from estimator.observe.grading import grade_observations
 from estimator.observe.observations import (
     CACHE_FILE,
@@ -55,10 +56,7 @@ def _write_overlay(
 ) -> None:
     """DATASET/overlay/NNNNNN.png for one frame (black where the image could not be read)."""
     rgb = frame.rgb if frame is not None else np.zeros((intrinsics.height, intrinsics.width, 3), np.uint8)
-    path = out / f"{obs.frame:06d}.png"
-    tmp = path.with_name(f".{path.name}.partial.png")
-    cv2.imwrite(str(tmp), cv2.cvtColor(draw_overlay(rgb, obs), cv2.COLOR_RGB2BGR))
-    tmp.replace(path)
+    write_png(out / f"{obs.frame:06d}.png", cv2.cvtColor(draw_overlay(rgb, obs), cv2.COLOR_RGB2BGR))
 
 
 def detect_and_cache(

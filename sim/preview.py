@@ -9,6 +9,7 @@ import cv2
 import mujoco
 import numpy as np
 
+from estimator.io.png import write_png
 from sim.render import RGBDRenderer
 
 if TYPE_CHECKING:
@@ -54,5 +55,5 @@ def write_preview(cell: SimCell, frames_rgb: list[np.ndarray], folder: Path) -> 
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "overview.png", folder / "contact_sheet.png"]
     for path, image in zip(paths, (overview_image(cell), contact_sheet(frames_rgb)), strict=True):
-        cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        write_png(path, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     return paths

@@ -37,6 +37,7 @@ REAL_CELL_MODULES = (
     "experiments.session.teach",
     "experiments.session.cell_config",
     "experiments.cli",
+    "experiments.commands",
 )
 HOST = "127.0.0.7"  # apart from the other loopback tests' addresses
 

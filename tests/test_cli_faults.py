@@ -20,6 +20,8 @@ import cv2
 import numpy as np
 import pytest
 
+from estimator.io.dataset import load_dataset
+from estimator.io.lock import LOCK_FILE
 from estimator.observe.observations import CACHE_FILE, load_observations
 from estimator.observe.synthetic import SyntheticNoise
 from estimator.solve.calibration import MethodOptions
@@ -92,6 +94,21 @@ def test_ctrl_c_during_simulate_is_a_message_and_leaves_nothing(tmp_path: Path) 
     assert list(tmp_path.glob(".out*")) == [] and not out.exists()
 
 
+def test_ctrl_c_held_down_during_simulate_does_not_cut_its_clean_up_short(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    process = _hec_process(
+        "simulate", "--out", str(out), "--scenario", str(scenario_file(tmp_path, 4)), "--quiet"
+    )
+    _wait_for_partial(out, process)
+    while process.poll() is None:  # one Ctrl-C every 10 ms until hec has ended
+        process.send_signal(signal.SIGINT)
+        time.sleep(0.01)
+    _, err = process.communicate(timeout=30)
+    assert process.returncode == 130 and "Traceback" not in err, err
+    assert f"interrupted: nothing written to {out}" in err and err.count("still cleaning up") <= 1, err
+    assert list(tmp_path.glob(".out*")) == [] and not out.exists()
+
+
 def test_the_partial_folder_of_a_killed_simulate_is_removed_by_the_next_run(tmp_path: Path) -> None:
     out, scenario = tmp_path / "out", scenario_file(tmp_path, 4)
     process = _hec_process("simulate", "--out", str(out), "--scenario", str(scenario), "--quiet")
@@ -117,6 +134,34 @@ def test_simulate_on_a_file_system_that_cannot_take_it_is_a_message(tmp_path: Pa
         assert code == 2 and f"hec: error: cannot write {fs / 'out'}: " in err and "nothing written" in err
         assert ("Read-only file system" if fault == "read-only" else "No space left on device") in err
         assert list(fs.iterdir()) == []
+
+
+def _tmpfs_size(folder: Path, more_kib: int) -> str:
+    """A tmpfs size that holds folder's files (in 4 KiB pages) and more_kib KiB more."""
+    pages = sum(-(-p.stat().st_size // 4096) for p in folder.rglob("*") if p.is_file())
+    return f"{4 * pages + more_kib}k"
+
+
+def test_detect_overlay_on_a_full_file_system_names_the_image(default_dataset: Path, tmp_path: Path) -> None:
+    """cv2.imwrite only returns False on a full disk: the overlay's error must still say which and why."""
+    with _tmpfs(tmp_path / "fs", _tmpfs_size(default_dataset, 64)) as fs:
+        ds = _uncached_copy(default_dataset, fs / "ds")
+        code, _, err = run_hec(["detect", str(ds), "--overlay", "--quiet"])
+        assert code == 2 and f"No space left on device: '{ds / 'overlay' / '000000.png'}'" in err, err
+        assert list((ds / "overlay").iterdir()) == [] and not (ds / CACHE_FILE).exists()
+
+
+def test_record_on_a_full_file_system_stops_naming_the_file_and_unlocks(tmp_path: Path) -> None:
+    scenario = scenario_file(tmp_path / "case", 3)
+    with _tmpfs(tmp_path / "fs", "700k") as fs:  # room for the first frame, not the second
+        out = fs / "rec"
+        code, _, err = run_hec(
+            ["record", "--sim", "--scenario", str(scenario), "--out", str(out), "--yes", "--no-live"]
+        )
+        assert code == 3 and "hec: session stopped: [Errno 28] No space left on device: " in err, err
+        assert f"'{out}/" in err and "frames recorded are kept" in err
+        assert not (out / LOCK_FILE).exists() and not list(out.rglob(".*partial*"))
+        assert load_dataset(out).metadata["recording"] == "interrupted"
 
 
 def test_calibrate_json_on_a_read_only_file_system_fails_before_the_work(

@@ -1,10 +1,12 @@
 """Faults found by the fault-injection pass of issue 18 (beside its listed cases): values a file
 must not hold (infinity, a ragged waypoint row, a NaN flange pose, frames out of order), temporary
-files left when a write fails, a file replaced by a dataset, and SIGTERM, SIGHUP and Ctrl-C to
-commands that had no handler."""
+files left when a write fails, a file replaced by a dataset, SIGTERM, SIGHUP and Ctrl-C to
+commands that had no handler or while hec still imports its libraries, a signal during the clean-up,
+and a resumed recording given other waypoints."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -15,7 +17,10 @@ from pathlib import Path
 
 import pytest
 
+from estimator.geometry.waypoints import write_waypoint_file
 from experiments.cli import main
+from sim.scenario import Scenario
+from sim.simulate import scenario_waypoints
 from tests.hec_cli import run_hec, scenario_file
 
 REPO = Path(__file__).resolve().parent.parent
@@ -34,11 +39,11 @@ def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _hec_process(*argv: str) -> subprocess.Popen:
+def _hec_process(*argv: str, env: dict[str, str] | None = None) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "experiments.cli", *argv],
         cwd=REPO,
-        env=os.environ | {"PYTHONPATH": str(REPO)},
+        env=os.environ | {"PYTHONPATH": str(REPO)} | (env or {}),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -155,6 +160,69 @@ def test_ctrl_c_while_a_board_is_drawn_writes_nothing(tmp_path: Path) -> None:
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130 and "Traceback" not in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("sig", "name"), [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "stopped by SIGTERM")])
+def test_a_signal_while_hec_still_imports_its_libraries_is_one_line(
+    tmp_path: Path, sig: signal.Signals, name: str
+) -> None:
+    """The signal lands once numpy has loaded and OpenCV, SciPy and the rest have not (Python's
+    import-time report on stderr says when)."""
+    process = _hec_process("detect", str(tmp_path / "none"), env={"PYTHONPROFILEIMPORTTIME": "1"})
+    for line in process.stderr:
+        if line.split("|")[-1].strip() == "numpy":
+            break
+    assert process.poll() is None, process.communicate()
+    process.send_signal(sig)
+    _, err = process.communicate(timeout=30)
+    said = [line for line in err.splitlines() if line and not line.startswith("import time:")]
+    assert process.returncode == 128 + sig, err[-3000:]
+    assert said == [f"hec: interrupted ({name}) while starting; nothing done"], said
+
+
+def test_signals_during_the_clean_up_are_ignored_and_said_once() -> None:
+    """A second and a third signal while the first one's clean-up runs: it goes on to its end."""
+    code = (
+        "import os, signal, time\n"
+        "from experiments.interrupts import stop_signals\n"
+        "with stop_signals():\n"
+        "    try:\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "        time.sleep(10)\n"
+        "    except KeyboardInterrupt:\n"
+        "        for sig in (signal.SIGINT, signal.SIGTERM):\n"
+        "            os.kill(os.getpid(), sig)\n"
+        "            time.sleep(0.05)\n"
+        "        print('cleaned up')\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"  # the process is ending: ignored
+        "print('exiting')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=REPO,
+        env=os.environ | {"PYTHONPATH": str(REPO)},
+        capture_output=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.decode().split() == ["cleaned", "up", "exiting"]
+    assert done.stderr.decode() == "\nhec: still cleaning up, please wait\n"
+
+
+def test_resume_with_other_waypoints_is_refused_naming_the_field(tmp_path: Path) -> None:
+    """--waypoints overrides the scenario's trajectory: the same scenario and seed, other views."""
+    out = tmp_path / "rec"
+    scenario = str(scenario_file(tmp_path, 2))
+    argv = ["record", "--sim", "--scenario", scenario, "--out", str(out), "--yes", "--no-live"]
+    assert run_hec(argv)[0] == 0
+    write_waypoint_file(tmp_path / "other.csv", scenario_waypoints(Scenario())[1:3])
+    code, _, err = run_hec([*argv, "--resume", "--waypoints", str(tmp_path / "other.csv")])
+    assert code == 2 and f"{out / 'dataset.json'}: cannot resume, 'waypoints.sha256' was '" in err, err
+    assert len((out / "frames.csv").read_text().splitlines()) == 3
+    meta = json.loads((out / "dataset.json").read_text())
+    del meta["waypoints"]  # as an older hec recorded it: resumed, and said so
+    (out / "dataset.json").write_text(json.dumps(meta))
+    code, _, err = run_hec([*argv, "--resume"])
+    assert code == 0 and f"{out / 'dataset.json'} has no 'waypoints' (an older recording): not checked" in err
 
 
 def test_teach_append_to_a_binary_file_names_it(tmp_path: Path) -> None:

@@ -16,7 +16,8 @@ import pytest
 from estimator.geometry.transforms import pose_error, xyz_quat_from_transform
 from estimator.io.dataset import load_dataset
 from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
-from experiments.cli import build_parser, main
+from experiments.cli import main
+from experiments.commands import build_parser
 from experiments.session import record
 from experiments.session.plot import PLOT_FILE
 from sim.cell import SimCell

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from estimator.geometry.waypoints import read_waypoint_file
-from experiments.cli import build_parser
+from experiments.commands import build_parser
 from experiments.session import teach
 from sim.cell import SimCell
 from sim.scenario import load_scenario

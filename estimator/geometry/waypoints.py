@@ -13,6 +13,7 @@ either ``x_m,y_m,z_m,qw,qx,qy,qz`` (T_base_flange, quaternion w first) or
 from __future__ import annotations
 
 import csv
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -201,3 +202,14 @@ def write_waypoint_file(path: str | Path, waypoints: list[Waypoint]) -> None:
         for wp in waypoints:
             t, q = xyz_quat_from_transform(wp.T_base_flange)
             writer.writerow([repr(float(v)) for v in (*t, *q)] + [wp.label])
+
+
+def waypoints_fingerprint(waypoints: list[Waypoint]) -> dict:
+    """What a recording keeps of its waypoints, for a resumed session to be checked against: their
+    count and the SHA-256 of their targets in order (joints or flange poses, rounded to 1e-9 rad or m;
+    the labels do not count)."""
+    digest = hashlib.sha256()
+    for w in waypoints:
+        kind, target = (b"joints", w.joints) if w.joints is not None else (b"pose", w.T_base_flange)
+        digest.update(kind + (np.round(np.asarray(target, dtype=float), 9) + 0.0).tobytes())
+    return {"count": len(waypoints), "sha256": digest.hexdigest()}

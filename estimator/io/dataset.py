@@ -44,9 +44,10 @@ import numpy as np
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
 from estimator.io.depth_png import decode_depth, encode_depth
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import first_difference, read_json_object
+from estimator.io.files import open_text, write_atomic
+from estimator.io.jsonfile import first_field_difference, read_json_object
 from estimator.io.lock import acquire_lock, release_lock, remove_dead_partials
+from estimator.io.png import write_png
 from estimator.targets.board import BoardDefinition, BoardDefinitionError, load_board
 
 FORMAT = "hec-dataset"
@@ -120,7 +121,7 @@ def _matrix(T: np.ndarray) -> list[list[float]]:
 
 
 def _dump_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2) + "\n")
+    write_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
 class DatasetWriter:
@@ -168,7 +169,7 @@ class DatasetWriter:
 
     def finish(self, ground_truth: GroundTruth | None = None, extra: dict | None = None) -> Path:
         """Write the tables and metadata, then move the dataset into place."""
-        with open(self.tmp_dir / "frames.csv", "w", newline="") as f:
+        with open_text(self.tmp_dir / "frames.csv", "w") as f:
             writer = csv.writer(f, lineterminator="\n")
             writer.writerow(FRAME_COLUMNS)
             writer.writerows(self.rows)
@@ -225,6 +226,12 @@ class DatasetRecorder:
             release_lock(self.root)
             raise
 
+    def __enter__(self) -> DatasetRecorder:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        release_lock(self.root)  # however the session ended (finish unlocks too)
+
     def _create(self) -> None:
         if self.root.exists():
             raise FileExistsError(
@@ -235,7 +242,7 @@ class DatasetRecorder:
         for sub in ("rgb", "depth", "depth_samples"):
             (self.root / sub).mkdir()
         _dump_json(self.root / "board.json", self.board.to_dict())
-        with open(self.root / "frames.csv", "w", newline="") as f:
+        with open_text(self.root / "frames.csv", "w") as f:
             csv.writer(f, lineterminator="\n").writerow((*FRAME_COLUMNS, *SESSION_COLUMNS))
         self._write_metadata("in progress")
 
@@ -247,16 +254,12 @@ class DatasetRecorder:
         stale = acquire_lock(self.root, "a recording")
         if stale is not None:
             self.notes.append(stale)
-        checks = {
-            "camera": (meta.get("camera"), self.intrinsics.to_dict()),
-            "depth_scale_m": (meta.get("depth_scale_m"), self.depth_scale_m),
-            "source": (meta.get("source"), self.source),
-        }
-        checks |= {key: (meta.get(key), self.extra.get(key)) for key in self.fixed}
-        for key, (recorded, now) in checks.items():
-            difference = first_difference(recorded, json.loads(json.dumps(now)), key)
-            if difference is not None:
-                raise DatasetError(f"{meta_path}: cannot resume, {difference}")
+        now = dict(camera=self.intrinsics.to_dict(), depth_scale_m=self.depth_scale_m, source=self.source)
+        unrecorded = [key for key in self.fixed if key in self.extra and key not in meta]  # older hec: none
+        self.notes += [f"{meta_path} has no '{key}' (an older recording): not checked" for key in unrecorded]
+        now |= {key: self.extra.get(key) for key in self.fixed if key not in unrecorded}
+        if (difference := first_field_difference(meta, now)) is not None:
+            raise DatasetError(f"{meta_path}: cannot resume, {difference}")
         if load_board(self.root / "board.json").to_dict() != self.board.to_dict():
             raise DatasetError(f"{self.root / 'board.json'}: cannot resume, the board is another one")
         frames_path = self.root / "frames.csv"
@@ -286,14 +289,14 @@ class DatasetRecorder:
         samples_name = ""
         if capture.depth_samples is not None:
             samples_name = f"depth_samples/{index:06d}.png"
-            _write_png(self.root / samples_name, np.asarray(capture.depth_samples, dtype=np.uint8))
+            write_png(self.root / samples_name, np.asarray(capture.depth_samples, dtype=np.uint8))
         if self.ground_truth is not None:
             if capture.true_T_base_flange is None or capture.true_joints is None:
                 raise DatasetError("a simulated session's capture must carry its true pose and joints")
             self.ground_truth.T_base_flange.append(capture.true_T_base_flange)
             self.ground_truth.joints.append(capture.true_joints)
             write_atomic(self.root / "ground_truth.json", json.dumps(_ground_truth_dict(self.ground_truth)))
-        with open(self.root / "frames.csv", "a", newline="") as f:
+        with open_text(self.root / "frames.csv", "a") as f:
             csv.writer(f, lineterminator="\n").writerow([*row, str(waypoint), samples_name])
             f.flush()
             os.fsync(f.fileno())
@@ -329,8 +332,8 @@ def _write_frame_files(
     if frame.depth_m.shape != (k.height, k.width):
         raise DatasetError(f"depth must be ({k.height}, {k.width}), got {frame.depth_m.shape}")
     rgb_name, depth_name = f"rgb/{index:06d}.png", f"depth/{index:06d}.png"
-    _write_png(root / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
-    _write_png(root / depth_name, encode_depth(frame.depth_m, depth_scale_m))
+    write_png(root / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
+    write_png(root / depth_name, encode_depth(frame.depth_m, depth_scale_m))
     t, q = xyz_quat_from_transform(frame.T_base_flange)
     values = [*t, *q, *frame.joints]
     return [str(index), repr(float(frame.time_s)), rgb_name, depth_name, *(repr(float(v)) for v in values)]
@@ -371,13 +374,6 @@ def _metadata(
         "frames_file": "frames.csv",
         "ground_truth_file": "ground_truth.json" if ground_truth is not None else None,
     }
-
-
-def _write_png(path: Path, image: np.ndarray) -> None:
-    ok, encoded = cv2.imencode(".png", image)
-    if not ok:
-        raise DatasetError(f"{path}: PNG encoding failed")
-    path.write_bytes(encoded.tobytes())
 
 
 @dataclass

@@ -29,3 +29,13 @@ def first_difference(recorded: object, now: object, key: str) -> str | None:
                 return difference
         return None
     return None if recorded == now else f"'{key}' was {recorded!r} and is now {now!r}"
+
+
+def first_field_difference(recorded: dict, now: dict) -> str | None:
+    """The first of now's keys whose value differs from recorded's, in words, or None (now's values
+    compared as they would read back from JSON: tuples as lists)."""
+    for key, value in now.items():
+        difference = first_difference(recorded.get(key), json.loads(json.dumps(value)), key)
+        if difference is not None:
+            return difference
+    return None

@@ -12,6 +12,8 @@ import re
 import shutil
 from pathlib import Path
 
+from estimator.io.files import errors_naming
+
 LOCK_FILE = ".hec-lock"
 _PARTIAL = re.compile(r"\.partial-(\d+)$")
 
@@ -67,8 +69,12 @@ def acquire_lock(folder: Path, what: str) -> str | None:
             path.unlink(missing_ok=True)
             note = f"removed a stale lock of {what} by process {pid}, which no longer runs ({path})"
             continue
-        with os.fdopen(fd, "w") as f:
-            f.write(f"{os.getpid()}\n")
+        try:
+            with errors_naming(path), os.fdopen(fd, "w") as f:
+                f.write(f"{os.getpid()}\n")
+        except OSError:  # a full disk: no lock without its PID is left
+            path.unlink(missing_ok=True)
+            raise
         return note
     raise FolderLockedError(f"{folder}: another process took the lock {path} at the same moment")
 

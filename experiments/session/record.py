@@ -19,7 +19,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
-from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointFileError, read_waypoint_file
+from estimator.geometry.waypoints import (
+    PlannedMove,
+    Waypoint,
+    WaypointFileError,
+    read_waypoint_file,
+    waypoints_fingerprint,
+)
 from estimator.io.dataset import DatasetError, DatasetRecorder, GroundTruth
 from estimator.io.lock import FolderLockedError
 from estimator.solve.methods import DEFAULT_METHOD, METHODS
@@ -33,8 +39,9 @@ if TYPE_CHECKING:
 EXIT_STOPPED = 3
 CALIBRATION_FILE = "calibration.json"
 # dataset.json fields a resumed session must share with the frames before it: a simulation's seed and
-# scenario (its trajectory, mount, noise) and the frame the robot poses are in.
-RESUME_FIXED = ("simulation", "pose_frame")
+# scenario (its trajectory, mount, noise), the frame the robot poses are in, and the waypoints (a
+# --waypoints file may stand in for the scenario's trajectory, and a file may have been edited).
+RESUME_FIXED = ("simulation", "pose_frame", "waypoints")
 
 
 class RecordError(ValueError):
@@ -278,21 +285,21 @@ def _session(
     """Record the planned moves into --out (or resume it), then report; `hec run` calibrates."""
     if not any(m.joints is not None for m in moves):
         raise RecordError("no waypoint can be used; see the reasons above")
-    recorder = DatasetRecorder(
+    with DatasetRecorder(
         args.out,
         cell.intrinsics,
         cell.board,
         cell.depth_scale_m,
         cell.source,
-        extra=extra,
+        extra=extra | {"waypoints": waypoints_fingerprint([m.waypoint for m in moves])},
         ground_truth=truth,
         resume=args.resume,
         fixed=RESUME_FIXED,
-    )
-    for note in recorder.notes:
-        print(f"note: {note}", file=sys.stderr)
-    live = None if args.no_live else LiveEstimate(recorder.root)
-    outcome = run_session(cell, moves, recorder, live)
+    ) as recorder:  # unlocked however the session ends
+        for note in recorder.notes:
+            print(f"note: {note}", file=sys.stderr)
+        live = None if args.no_live else LiveEstimate(recorder.root)
+        outcome = run_session(cell, moves, recorder, live)
     print(f"dataset: {outcome.root} ({outcome.total} frames, {outcome.recorded} recorded now)")
     if outcome.stopped is not None:
         print(f"hec: session stopped: {outcome.stopped}", file=sys.stderr)

@@ -35,8 +35,9 @@ from hardware.ur_robot import RobotError
 
 # Why the running estimate may not exist yet: too few usable frames, or the method failed.
 _NOT_YET = (CalibrationInputError, ValueError, np.linalg.LinAlgError)
-# What stops a session (the frames recorded before stay): the arm, the camera, or Ctrl-C.
-SESSION_STOPS = (RobotError, CameraError, KeyboardInterrupt)
+# What stops a session (the frames recorded before stay): the arm, the camera, a frame that cannot be
+# written (a full disk; the error names the file), or Ctrl-C, SIGTERM and SIGHUP.
+SESSION_STOPS = (RobotError, CameraError, OSError, KeyboardInterrupt)
 
 
 class SessionCell(Protocol):
@@ -145,8 +146,8 @@ def run_session(
     say: Callable[[str], None] = print,
 ) -> SessionOutcome:
     """Visit every planned move not yet recorded (a resumed session skips those), writing
-    each frame as it is captured. A stop of the arm or camera, or Ctrl-C, ends the session
-    with the frames so far kept and dataset.json marked 'interrupted'."""
+    each frame as it is captured. A stop of the arm or camera, a full disk, or Ctrl-C ends the
+    session with the frames so far kept and dataset.json marked 'interrupted'."""
     outcome = SessionOutcome(recorder.root)
     done = recorder.recorded_waypoints
     todo = [m for m in moves if m.waypoint.index not in done]

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from estimator.io.jsonfile import read_json_object
+from experiments.interrupts import interrupted_exit_code
 from experiments.sweep.rows import (
     DATASETS_DIR,
     META_FILE,
@@ -146,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     except (SweepConfigError, SweepError) as exc:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (experiments.interrupts)
         methods = config.methods if config is not None else None
         done = len({r["trial_id"] for r in read_complete_rows(out_dir / ROWS_FILE, methods)})
         print(
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
             "continue with the same command and --resume",
             file=sys.stderr,
         )
-        return 130
+        return interrupted_exit_code(exc)
     rows = load_rows(out_dir)
     print(
         f"{outcome.computed} trials run in {outcome.seconds:.1f} s ({outcome.skipped} already done), "

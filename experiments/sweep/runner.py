@@ -259,20 +259,21 @@ def _run_dask(tasks: list[TrialTask], client: Any, on_rows: Callable, on_error: 
 
 @contextlib.contextmanager
 def _terminate_as_interrupt() -> Iterator[None]:
-    """SIGTERM (a batch system stopping the job) stops the sweep as Ctrl-C does."""
+    """SIGTERM (a batch system stopping the job) stops the sweep as Ctrl-C does, unless the caller
+    handles SIGTERM already (`hec` does: experiments.interrupts)."""
 
     def interrupt(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
+    previous = None
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        with contextlib.suppress(ValueError):  # not the main thread: leave signals alone
+            previous = signal.signal(signal.SIGTERM, interrupt)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 @dataclass
