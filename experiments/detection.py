@@ -14,6 +14,7 @@ from tqdm import tqdm
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.io.dataset import Dataset, Frame, load_dataset
 from estimator.io.png import write_png
+from estimator.observe.corner_noise import CornerNoise, learn_corner_floor
 from estimator.observe.grading import grade_observations
 from estimator.observe.observations import (
     CACHE_FILE,
@@ -65,10 +66,12 @@ def detect_and_cache(
     quiet: bool = False,
     on_frame: Callable[[FrameObservations, Frame | None], None] | None = None,
     must_cache: bool = True,
-) -> tuple[list[FrameObservations], Path | None]:
-    """Detect every frame with a progress bar (unless quiet), write DATASET/detections.json.
-    on_frame: called after each frame. Returns the observations and the cache path; without
-    must_cache, a cache that cannot be written (a read-only dataset) is a note and None."""
+) -> tuple[list[FrameObservations], Path | None, CornerNoise | None]:
+    """Detect every frame with a progress bar (unless quiet), learn the corner noise floor
+    (settings.learn_corner_floor), write DATASET/detections.json. on_frame: called after each
+    frame. Returns the observations, the cache path and the corner noise (None when not
+    learned); without must_cache, a cache that cannot be written (a read-only dataset) is a
+    note and None."""
     depth_noise = dataset_depth_noise(dataset)
     if "depth_noise" not in dataset.metadata:
         print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
@@ -80,13 +83,19 @@ def detect_and_cache(
             bar.update()
 
         observations = observe_dataset(dataset, settings, depth_noise, progress=after_frame)
+    observations, noise = learn_corner_floor(observations, dataset.board, dataset.intrinsics, settings)
+    block = None if noise is None else noise.to_dict()
     try:
-        return observations, save_observations(dataset.root, observations, settings, depth_noise)
+        return (
+            observations,
+            save_observations(dataset.root, observations, settings, depth_noise, block),
+            noise,
+        )
     except OSError as exc:
         if must_cache:
             raise
         print(f"note: cannot write {dataset.root / CACHE_FILE} ({exc.strerror}): not cached", file=sys.stderr)
-        return observations, None
+        return observations, None, noise
 
 
 def cached_or_detected(dataset: Dataset, quiet: bool = False) -> tuple[list[FrameObservations], str]:
@@ -99,7 +108,9 @@ def cached_or_detected(dataset: Dataset, quiet: bool = False) -> tuple[list[Fram
     except ObservationCacheError as exc:
         reason = "no detections cache" if not (dataset.root / CACHE_FILE).exists() else str(exc)
     print(f"note: {reason}; detecting the board in {len(dataset)} frames", file=sys.stderr)
-    observations, cache = detect_and_cache(dataset, DetectorSettings(), quiet, must_cache=False)
+    observations, cache, noise = detect_and_cache(dataset, DetectorSettings(), quiet, must_cache=False)
+    if noise is not None:
+        print(f"note: {noise.describe()}", file=sys.stderr)
     return observations, f"detected now, cached in {cache}" if cache else "detected now, not cached"
 
 
@@ -122,7 +133,7 @@ def run_detect(
     settings = DetectorSettings(passes=passes)
     overlay_dir = dataset.root / OVERLAY_DIR
     start = time.perf_counter()
-    observations, cache = detect_and_cache(
+    observations, cache, noise = detect_and_cache(
         dataset, settings, quiet, overlay_writer(dataset) if overlay else None
     )
     elapsed = time.perf_counter() - start
@@ -139,6 +150,8 @@ def run_detect(
         f"{1000 * elapsed / max(len(observations), 1):.1f} ms per frame with image loading"
         + (" and overlays" if overlay else "")
     )
+    if noise is not None:
+        print(noise.describe())
     print(f"observations: {cache}")
     if overlay:
         print(f"overlays: {overlay_dir}/")

@@ -141,7 +141,7 @@ def record_through_librealsense(simulated: Path, out: Path, seed: int, burst: in
 
 def ekf_error(dataset_dir: Path) -> tuple[float, float]:
     dataset = load_dataset(dataset_dir)
-    observations, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True)
+    observations, _, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True)
     problem = build_problem(
         observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset), use_depth=True
     )

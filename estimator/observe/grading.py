@@ -1,7 +1,9 @@
 """Observations graded against simulated ground truth: detection rate, errors and normalised errors.
 
 The true camera pose of frame i is T_base_cam = T_base_flange_true[i] @ T_flange_cam,
-so the true board in the camera is T_cam_board = T_base_cam^-1 @ T_base_board.
+so the true board in the camera is T_cam_board = T_base_cam^-1 @ T_base_board. The true
+marker corners are the printed ones seen through the true camera (lens included) when the
+truth records model errors (sim.model_errors), else the definition's through the dataset's.
 Normalised errors are e^T C^-1 e / dim, whose mean is 1 when the covariances C are
 honest.
 """
@@ -12,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, project_points
+from estimator.geometry.camera import CameraIntrinsics, project
 from estimator.geometry.transforms import invert, transform_points
 from estimator.io.dataset import GroundTruth
 from estimator.observe.observations import FrameObservations
@@ -86,21 +88,37 @@ def true_T_cam_board(truth: GroundTruth, frame: int) -> np.ndarray:
     return invert(truth.T_base_flange[frame] @ truth.T_flange_cam) @ truth.T_base_board
 
 
+def true_cell(
+    truth: GroundTruth, board: BoardDefinition, intrinsics: CameraIntrinsics
+) -> tuple[CameraIntrinsics, np.ndarray]:
+    """The camera that formed the images and the (M, 4, 3) corners of the board's markers as
+    printed (board frame, metres, ordered by board.marker_ids): the truth's model errors where
+    it records them, else the dataset's intrinsics and the board definition."""
+    errors = truth.model_errors or {}
+    camera = CameraIntrinsics.from_dict(errors["intrinsics"]) if "intrinsics" in errors else intrinsics
+    corners = np.array(errors["board"]["true_corners_m"]) if "board" in errors else board.all_corners()
+    return camera, corners
+
+
 def grade_observations(
     observations: list[FrameObservations],
     truth: GroundTruth,
     board: BoardDefinition,
     intrinsics: CameraIntrinsics,
 ) -> MeasurementErrors:
-    """Compare every frame's observations with the truth (pinhole projection, no distortion)."""
+    """Compare every frame's observations with the truth (true_cell). A marker's true centre
+    is the mean of its true corners (off its bent sheet by a few hundredths of a millimetre)."""
     errors = MeasurementErrors()
+    camera, corners_board = true_cell(truth, board, intrinsics)
     for obs in observations:
         T_cam_board = true_T_cam_board(truth, obs.frame)
-        for marker_id in board.marker_ids:
-            true_corners = project_points(T_cam_board, board.marker_corners(marker_id), intrinsics.K)
+        for marker_id, corners in zip(board.marker_ids, corners_board, strict=True):
+            points_board = np.vstack([corners.mean(axis=0), corners])
+            true_points = transform_points(T_cam_board, points_board)
+            true_center, true_corners = np.split(project(T_cam_board, points_board, camera), [1])
             facing = (invert(T_cam_board) @ np.array([0.0, 0.0, 0.0, 1.0]))[2] > 0.0
             visible = facing and fits_in_image(
-                true_corners, VISIBLE_QUIET_MODULES / board.modules, (intrinsics.height, intrinsics.width)
+                true_corners, VISIBLE_QUIET_MODULES / board.modules, (camera.height, camera.width)
             )
             errors.visible += int(visible)
             marker = obs.marker(marker_id)
@@ -118,15 +136,11 @@ def grade_observations(
                 errors.corner_nees.append(
                     float(corner_error[k] @ np.linalg.solve(cov, corner_error[k])) / 2.0
                 )
-            true_center = project_points(T_cam_board, board.marker_center(marker_id)[None], intrinsics.K)[0]
-            e = marker.center_px - true_center
+            e = marker.center_px - true_center[0]
             errors.center_errors_px.append(e)
             errors.center_px_nees.append(float(e @ np.linalg.solve(marker.center_cov, e)) / 2.0)
             if marker.points_cam is None:
                 continue
-            true_points = transform_points(
-                T_cam_board, np.vstack([board.marker_center(marker_id), board.marker_corners(marker_id)])
-            )
             d = marker.points_cam - true_points
             errors.point_errors_m.append(d)
             errors.point_nees.append(

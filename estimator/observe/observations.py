@@ -11,7 +11,8 @@ and cov(p) = dp/d(uv) cov(uv) dp/d(uv)^T + var(z) ray ray^T.
 A frame that cannot be used keeps its row with ``problem`` set; a marker
 without depth keeps its pixels with ``depth_note`` saying why. Observations
 are cached beside a dataset in ``detections.json`` (format hec-detections v1)
-so estimators can be rerun without detecting again.
+so estimators can be rerun without detecting again, with the corner noise floor learned
+from the dataset (estimator.observe.corner_noise) when their covariances use it.
 """
 
 from __future__ import annotations
@@ -157,6 +158,32 @@ def camera_points(
     return rays * z[:, None], points_cov
 
 
+def with_pixel_floor(
+    marker: MarkerObservation, corner_var: float, center_var: float, intrinsics: CameraIntrinsics
+) -> MarkerObservation:
+    """The marker with corner_var added to the variance of each corner coordinate and center_var
+    to the centre's (pixels^2), and its 3D points' covariances grown to match."""
+    grown = replace(
+        marker,
+        corners_cov=marker.corners_cov + corner_var * np.eye(8),
+        center_cov=marker.center_cov + center_var * np.eye(2),
+    )
+    if marker.points_cam is None:
+        return grown
+    uv = np.vstack([marker.center_px, marker.corners_px])
+    slope = _plane_slope(uv, marker.depth_m)
+    _, points_cov = camera_points(grown, marker.depth_m, marker.depth_cov, slope, intrinsics)
+    return replace(grown, points_cov=points_cov)
+
+
+def _plane_slope(uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(5, 2) dz/d(u, v) at the pixels uv (5, 2) of depths z (5,) on one plane, metres per
+    pixel: 1/z is linear in (u, v) there (estimator.observe.depth.MarkerDepth)."""
+    A = np.column_stack([np.ones(len(uv)), uv - uv.mean(axis=0)])
+    coeffs = np.linalg.lstsq(A, 1.0 / z, rcond=None)[0]
+    return -(z * z)[:, None] * coeffs[1:][None, :]
+
+
 def _depth(
     marker: MarkerDetection, depth_m: np.ndarray, intrinsics: CameraIntrinsics, noise: DepthNoiseModel
 ) -> dict:
@@ -260,14 +287,18 @@ def save_observations(
     observations: list[FrameObservations],
     settings: DetectorSettings,
     depth_noise: DepthNoiseModel,
+    corner_noise: dict | None = None,
 ) -> Path:
-    """Write DATASET/detections.json (temporary file, then rename). Returns its path."""
+    """Write DATASET/detections.json (temporary file, then rename). Returns its path.
+    corner_noise: the corner noise measured on the dataset and the floors its covariances use
+    (estimator.observe.corner_noise.CornerNoise.to_dict), if they were learned."""
     data = {
         "format": CACHE_FORMAT,
         "version": CACHE_VERSION,
         "dataset_fingerprint": dataset_fingerprint(root, len(observations)),
         "detector": settings.to_dict(),
         "depth_noise": depth_noise.to_dict(),
+        "corner_noise": corner_noise,
         "points": "centre, corner 0..3 (top-left, top-right, bottom-right, bottom-left of the marker)",
         "units": "pixels; metres in the camera frame (x right, y down, z forward)",
         "frames": [

@@ -53,8 +53,11 @@ class DetectorSettings:
     """passes: "backend@scale" decoding passes in order (back-ends: zxing, pyzbar, opencv).
     stop_when_complete: skip later passes once every marker predicted in view is decoded.
     corner_floor_px, center_floor_px: pixel error image noise does not explain (see
-    estimator.targets.qr_fit). Markers whose modules or aligned code match worse than
-    min_module_agreement or min_correlation are rejected. follow_printed_symbol: a marker
+    estimator.targets.qr_fit). learn_corner_floor: a dataset's observations get the floors
+    its markers' consistency shows instead, these constants as the least
+    (estimator.observe.corner_noise; the detector itself always uses the constants).
+    Markers whose modules or aligned code match worse than min_module_agreement or
+    min_correlation are rejected. follow_printed_symbol: a marker
     printed with another version, error correction or mask than its definition is compared
     with the code as printed (False: rejected, naming the difference)."""
 
@@ -62,6 +65,7 @@ class DetectorSettings:
     stop_when_complete: bool = True
     corner_floor_px: float = DEFAULT_CORNER_FLOOR_PX
     center_floor_px: float = DEFAULT_CENTER_FLOOR_PX
+    learn_corner_floor: bool = True
     min_module_agreement: float = 0.9
     min_correlation: float = 0.8
     follow_printed_symbol: bool = True
@@ -78,6 +82,7 @@ class DetectorSettings:
             "stop_when_complete": self.stop_when_complete,
             "corner_floor_px": self.corner_floor_px,
             "center_floor_px": self.center_floor_px,
+            "learn_corner_floor": self.learn_corner_floor,
             "min_module_agreement": self.min_module_agreement,
             "min_correlation": self.min_correlation,
             "follow_printed_symbol": self.follow_printed_symbol,
@@ -85,7 +90,9 @@ class DetectorSettings:
 
     @classmethod
     def from_dict(cls, d: dict) -> DetectorSettings:
-        return cls(**{**d, "passes": tuple(d["passes"])})
+        """The settings to_dict wrote; without learn_corner_floor (caches made before it
+        existed) the constant floors were used."""
+        return cls(**{"learn_corner_floor": False, **d, "passes": tuple(d["passes"])})
 
 
 def parse_pass(spec: str) -> tuple[str, int]:

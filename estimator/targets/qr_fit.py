@@ -39,8 +39,9 @@ QUANTISATION_SIGMA = 1.0 / np.sqrt(12.0)
 # Error per coordinate that image noise does not explain, pixels, for a corner and for
 # the centre. Measured on noise-free renders of the default trajectory (RMS 0.013 px per
 # corner coordinate, 0.0036 px at the centre: the renderer's texture sampling mostly
-# changes a marker's apparent size, which cancels at its centre). A real cell adds
-# printing and lens-model errors.
+# changes a marker's apparent size, which cancels at its centre). A real cell adds more;
+# a dataset's observations get the floor their markers' agreement shows
+# (estimator.observe.corner_noise), these as the least.
 DEFAULT_CORNER_FLOOR_PX = 0.013
 DEFAULT_CENTER_FLOOR_PX = 0.0036
 # Gaussian kernel size (pixels) both images are smoothed with before alignment.

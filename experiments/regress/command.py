@@ -96,7 +96,7 @@ def run_trial(baseline: Baseline, scenario: Scenario, seed: int, dataset_dir: Pa
 
     result = simulate(scenario, dataset_dir, seed, progress=False)
     dataset = load_dataset(result.out_dir)
-    observations, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True)
+    observations, _, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True)
     problem = build_problem(
         observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset), use_depth=True
     )

@@ -17,6 +17,7 @@ import numpy as np
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
 from estimator.io.dataset import Capture, DatasetRecorder, Frame, load_dataset
+from estimator.observe.corner_noise import learn_corner_floor
 from estimator.observe.observations import (
     FrameObservations,
     dataset_depth_noise,
@@ -111,15 +112,18 @@ class LiveEstimate:
         return line
 
     def save(self, root: Path) -> list[Path]:
-        """Write the observations as the dataset's detections.json (after its last change) and,
-        once the estimate has a sigma, the picture of how it settled. Frames recorded but not yet
-        detected (Ctrl-C during a frame's detection) are detected first. Returns the files."""
+        """Write the observations, on the corner noise floor they show, as the dataset's
+        detections.json (after its last change) and, once the estimate has a sigma, the picture
+        of how it settled. Frames recorded but not yet detected (Ctrl-C during a frame's
+        detection) are detected first. Returns the files."""
         dataset = load_dataset(root)
         for index in range(len(self.observations), len(dataset)):
             self.observations.append(
                 observe_frame(index, dataset.frame(index), self.detector, self.depth_noise)
             )
-        written = [save_observations(root, self.observations, self.settings, self.depth_noise)]
+        learned, noise = learn_corner_floor(self.observations, self.board, self.intrinsics, self.settings)
+        block = None if noise is None else noise.to_dict()
+        written = [save_observations(root, learned, self.settings, self.depth_noise, block)]
         history = self.history()
         if any(c.covariance is not None for _, c in history):
             written.append(plot_convergence(history, root / PLOT_FILE))

@@ -236,7 +236,7 @@ def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> 
             raise SweepError(f"simulation: {exc}") from None
         dataset = load_dataset(result.out_dir)
         on_frame = overlay_writer(dataset) if task.example_dir else None
-        observations, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True, on_frame=on_frame)
+        observations, _, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True, on_frame=on_frame)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         _TEMPORARY.discard(tmp)
