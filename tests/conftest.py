@@ -1,11 +1,19 @@
-"""Choose the headless OpenGL backend before any test module imports mujoco, and share
-simulated datasets between test modules (rendering one takes a few seconds)."""
+"""Choose the headless OpenGL backend before any test module imports mujoco, share
+simulated datasets between test modules (rendering one takes a few seconds), and take Ctrl-C
+even when the suite was started in the background."""
 
+import signal
 from pathlib import Path
 
 import pytest
 
 import sim  # noqa: F401  (selects EGL or OSMesa before mujoco loads)
+
+# A non-interactive shell starts background jobs with SIGINT ignored, and hec (like any program)
+# keeps an ignored signal ignored, so the tests that press Ctrl-C on hec (in this process or in
+# the subprocesses it starts, which inherit the setting) would test nothing: take it back.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # The seed the detector's error floors were measured with is 0; tests grade on others.
 TEST_SEED = 7
