@@ -151,11 +151,12 @@ def ekf_error(dataset_dir: Path) -> tuple[float, float]:
 
 
 def test_calibration_through_librealsense_matches_the_simulator(tmp_path: Path) -> None:
-    """ekf on three seeds: RMS error through librealsense within 20 % of the simulator's own
+    """ekf on three seeds: RMS error through librealsense within 40 % of the simulator's own
     frames. The software device's frame timing picks which noise draws a burst gets, so the
-    three-seed RMS through librealsense varies from run to run: +4 %, +1 % and +11 % in three
-    measured runs (the last on a loaded machine). The depth biases this test exists for cost
-    +190 % or more (0.54 / 0.70 / 1.23 mm against 0.19 / 0.04 / 0.16 mm)."""
+    three-seed RMS through librealsense varies from run to run: +4 %, +1 %, +11 % in three
+    measured runs, then (rotation) +5 %, +16 % and +24 % in three more; at 20 % the test failed
+    about one run in four with nothing wrong. The depth biases this test exists for cost +190 % or
+    more (0.54 / 0.70 / 1.23 mm against 0.19 / 0.04 / 0.16 mm)."""
     scenario = d435_scenario(load_scenario(None))
     direct, through_rs = [], []
     for seed in (TEST_SEED, TEST_SEED + 1, TEST_SEED + 2):
@@ -166,7 +167,7 @@ def test_calibration_through_librealsense_matches_the_simulator(tmp_path: Path) 
     rms_direct = np.sqrt(np.mean(np.square(direct), axis=0))
     rms_rs = np.sqrt(np.mean(np.square(through_rs), axis=0))
     print(f"ekf RMS error (mm, deg): simulator {rms_direct}, through librealsense {rms_rs}")
-    assert np.all(rms_rs <= 1.2 * rms_direct), (direct, through_rs)
+    assert np.all(rms_rs <= 1.4 * rms_direct), (direct, through_rs)
 
 
 def test_a_recording_plays_back_through_the_same_source(tmp_path: Path) -> None:
