@@ -35,8 +35,9 @@ CAMERA_STEPS = (1e-3, 1e-3, 1e-6, 1e-6)  # fx, fy, k1, k2
 
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(QUADRATURE_SIDE)
 # The quadrature's points (G, 2) in symbol coordinates and their weights (G,), summing to 1.
-QUADRATURE_AB = np.column_stack([np.tile(_NODES, QUADRATURE_SIDE), np.repeat(_NODES, QUADRATURE_SIDE)])
-QUADRATURE_AB = 0.5 * (QUADRATURE_AB + 1.0)
+QUADRATURE_AB = 0.5 + 0.5 * np.column_stack(
+    [np.tile(_NODES, QUADRATURE_SIDE), np.repeat(_NODES, QUADRATURE_SIDE)]
+)
 QUADRATURE_WEIGHTS = 0.25 * np.outer(_WEIGHTS, _WEIGHTS).ravel()
 _CORNERS_AB = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 
