@@ -9,11 +9,15 @@ import pytest
 
 import sim  # noqa: F401  (selects EGL or OSMesa before mujoco loads)
 
-# A non-interactive shell starts background jobs with SIGINT ignored, and hec (like any program)
-# keeps an ignored signal ignored, so the tests that press Ctrl-C on hec (in this process or in
-# the subprocesses it starts, which inherit the setting) would test nothing: take it back.
+# A non-interactive shell starts background jobs with SIGINT ignored and nohup ignores SIGHUP;
+# hec (like any program) keeps an ignored signal ignored, so the tests that send these to hec (in
+# this process or in the subprocesses it starts, which inherit an ignored signal) would test
+# nothing. Ctrl-C is taken back here; a hang-up gets a handler that does nothing, which keeps this
+# process running as nohup meant and leaves its subprocesses the default.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+    signal.signal(signal.SIGHUP, lambda signum, frame: None)
 
 # The seed the detector's error floors were measured with is 0; tests grade on others.
 TEST_SEED = 7
