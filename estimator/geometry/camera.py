@@ -91,7 +91,7 @@ def project(T_cam_x: np.ndarray, p_x: np.ndarray, intrinsics: CameraIntrinsics) 
     p_cam = p_x @ T_cam_x[:3, :3].T + T_cam_x[:3, 3]
     xy = p_cam[:, :2] / p_cam[:, 2:3]
     if any(intrinsics.dist):
-        xy = distort_normalized(xy, intrinsics.dist)[0]
+        xy = distort(xy, intrinsics.dist)
     return np.column_stack(
         [intrinsics.fx * xy[:, 0] + intrinsics.cx, intrinsics.fy * xy[:, 1] + intrinsics.cy]
     )
@@ -100,25 +100,36 @@ def project(T_cam_x: np.ndarray, p_x: np.ndarray, intrinsics: CameraIntrinsics) 
 UNDISTORT_ITERATIONS = 30
 
 
+def distort(xy: np.ndarray, dist: tuple) -> np.ndarray:
+    """OpenCV's distortion (k1, k2, p1, p2, k3) of normalised image points xy (..., 2) (x/z, y/z):
+    the distorted normalised coordinates (..., 2). Each coefficient is a number, or an array that
+    broadcasts against xy[..., 0] (a camera per point)."""
+    k1, k2, p1, p2, k3 = (tuple(dist) + (0.0,) * 5)[:5]
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
 def distort_normalized(xy: np.ndarray, dist: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's distortion (k1, k2, p1, p2, k3) of normalised image points, with its Jacobian.
 
     xy: (N, 2) undistorted normalised coordinates (x/z, y/z).
-    Returns (N, 2) distorted normalised coordinates and (N, 2, 2) d(distorted)/d(xy).
+    Returns (N, 2) distorted normalised coordinates (distort) and (N, 2, 2) d(distorted)/d(xy).
     """
     k1, k2, p1, p2, k3 = (tuple(dist) + (0.0,) * 5)[:5]
     x, y = xy[:, 0], xy[:, 1]
     r2 = x * x + y * y
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     jac = np.empty((len(x), 2, 2))
     jac[:, 0, 0] = radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x
     jac[:, 0, 1] = 2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
     jac[:, 1, 0] = 2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
     jac[:, 1, 1] = radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + 2.0 * p2 * x
-    return np.column_stack([xd, yd]), jac
+    return distort(xy, dist), jac
 
 
 def pixel_rays(uv: np.ndarray, intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.camera import CameraIntrinsics, distort
 
 QUADRATURE_SIDE = 4
 # Forward-difference steps of the derivatives: normalised image coordinates of a corner; pixels of
@@ -92,15 +92,9 @@ def _camera(intrinsics: CameraIntrinsics, M: int) -> np.ndarray:
 
 def _distorted_pixels(xy: np.ndarray, camera: np.ndarray) -> np.ndarray:
     """(M, N, 2) pinhole normalised coordinates -> distorted pixels (M, N, 2) relative to the
-    principal point, for each marker's camera (M, 7) (OpenCV's model, as
-    estimator.geometry.camera.distort_normalized)."""
-    fx, fy, k1, k2, p1, p2, k3 = (camera[:, j : j + 1] for j in range(7))
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    u = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    v = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([fx * u, fy * v], axis=-1)
+    principal point, for each marker's camera (M, 7)."""
+    distorted = distort(xy, tuple(camera[:, j : j + 1] for j in range(2, 7)))
+    return distorted * camera[:, None, :2]
 
 
 def marker_fit_bias(corners_cam: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:

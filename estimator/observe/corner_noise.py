@@ -45,7 +45,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 from scipy.sparse import lil_matrix
 
-from estimator.geometry.camera import CameraIntrinsics, distort_normalized, pixel_rays
+from estimator.geometry.camera import CameraIntrinsics, distort, pixel_rays
 from estimator.observe.observations import FrameObservations, with_pixel_floor
 from estimator.targets.board import BoardDefinition
 from estimator.targets.qr import DetectorSettings
@@ -172,7 +172,7 @@ def _pixels(xy_norm: np.ndarray, intrinsics: CameraIntrinsics, lens_k: np.ndarra
     """(..., 2) undistorted normalised coordinates -> pixels through the declared lens plus lens_k."""
     dist = np.array((tuple(intrinsics.dist) + (0.0,) * 5)[:5])
     dist[:2] += lens_k
-    flat = distort_normalized(xy_norm.reshape(-1, 2), tuple(dist))[0]
+    flat = distort(xy_norm.reshape(-1, 2), tuple(dist))
     uv = flat * [intrinsics.fx, intrinsics.fy] + [intrinsics.cx, intrinsics.cy]
     return uv.reshape(xy_norm.shape)
 

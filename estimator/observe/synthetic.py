@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, distort_normalized
+from estimator.geometry.camera import CameraIntrinsics, distort
 from estimator.geometry.lie import pose_plus
 from estimator.geometry.marker_fit_bias import marker_fit_bias
 from estimator.geometry.transforms import invert, transform_points
@@ -38,7 +38,7 @@ class SyntheticNoise:
 def project(T_cam_base: np.ndarray, p_base: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
     """(N, 3) base-frame points -> (N, 2) pixels with the intrinsics' distortion."""
     p_cam = transform_points(T_cam_base, p_base)
-    xy, _ = distort_normalized(p_cam[:, :2] / p_cam[:, 2:3], intrinsics.dist)
+    xy = distort(p_cam[:, :2] / p_cam[:, 2:3], intrinsics.dist)
     return xy * [intrinsics.fx, intrinsics.fy] + [intrinsics.cx, intrinsics.cy]
 
 
