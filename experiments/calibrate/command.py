@@ -11,6 +11,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from estimator.io.calibration_file import (
+    CALIBRATION_FORMAT,
+    CALIBRATION_VERSION,
+    covariance_field,
+    pose_field,
+)
 from estimator.io.dataset import Dataset, load_dataset
 from estimator.io.jsonfile import read_json_object
 from estimator.observe.observations import FrameObservations
@@ -30,6 +36,7 @@ from experiments.calibrate.loo import BUDGET_S, add_cross_validation
 from experiments.calibrate.report import (
     MethodFailure,
     Result,
+    add_pick_error,
     calibration_to_dict,
     check_json_path,
     format_calibration,
@@ -39,7 +46,6 @@ from experiments.calibrate.report import (
 from experiments.detection import cached_or_detected
 
 ALL_METHODS = "all"
-ROTATION_TOLERANCE = 1e-5  # max |R^T R - I| entry accepted in a prior file
 
 
 class PriorFileError(ValueError):
@@ -75,21 +81,6 @@ class CalibrateSettings:
 # ---------------------------------------------------------------- inputs
 
 
-def _matrix_field(data: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
-    try:
-        value = np.array(data[key], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise PriorFileError(
-            f"{path}: field '{key}' must be a {shape[0]}x{shape[1]} list of numbers"
-        ) from None
-    if value.shape != shape or not np.all(np.isfinite(value)):
-        raise PriorFileError(
-            f"{path}: field '{key}' must be a {shape[0]}x{shape[1]} list of finite numbers, "
-            f"got shape {value.shape}"
-        )
-    return value
-
-
 def load_prior(path: Path) -> Prior:
     """A Prior from a JSON object with 'T_flange_cam' (4x4, metres) and optional 'covariance'
     (6x6, the COVARIANCE_CONVENTION; null or absent: the wide default), such as a --json output."""
@@ -101,23 +92,10 @@ def load_prior(path: Path) -> Prior:
             else ""
         )
         raise PriorFileError(f"{path}: missing field 'T_flange_cam' (a 4x4 matrix, metres){hint}")
-    T = _matrix_field(data, "T_flange_cam", (4, 4), path)
-    R = T[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(R) < 0:
-        raise PriorFileError(
-            f"{path}: field 'T_flange_cam' must have a rotation (orthonormal, determinant +1) "
-            "in its upper-left 3x3"
-        )
-    if np.abs(T[3] - [0, 0, 0, 1]).max() > 0:
-        raise PriorFileError(f"{path}: field 'T_flange_cam' must have the last row 0 0 0 1")
-    U, _, Vt = np.linalg.svd(R)
-    T[:3, :3] = U @ Vt
+    T = pose_field(data, "T_flange_cam", path, PriorFileError)
     if data.get("covariance") is None:
         return Prior(T)
-    cov = _matrix_field(data, "covariance", (6, 6), path)
-    if np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max() or np.linalg.eigvalsh(cov)[0] <= 0:
-        raise PriorFileError(f"{path}: field 'covariance' must be symmetric positive definite")
-    return Prior(T, cov)
+    return Prior(T, covariance_field(data, "covariance", path, PriorFileError))
 
 
 def robot_noise(
@@ -179,6 +157,7 @@ def run_methods(
             results.append(MethodFailure(name, str(exc)))
             continue
         add_cross_validation(cal, name, problem, options, observations, loo, loo_budget_s, quiet)
+        add_pick_error(cal, problem)
         results.append(cal)
     return results
 
@@ -190,6 +169,8 @@ def _context(
     dataset: Dataset, problem: CalibrationProblem, settings: CalibrateSettings, noise_source: str
 ) -> dict:
     return {
+        "format": CALIBRATION_FORMAT,
+        "version": CALIBRATION_VERSION,
         "dataset": str(dataset.root),
         "pose_frame": dataset.metadata.get("pose_frame", "flange"),
         "frames_used": len(problem.frames),
