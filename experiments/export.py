@@ -1,0 +1,119 @@
+"""`hec export CALIBRATION.json --to FORMAT`: the calibration for the user's stack (estimator.io.export).
+
+With a child frame that is the camera's root link (camera_link) the camera driver's camera_link ->
+optical frame transform is composed out; it comes from --link-optical-values, --link-optical FILE, the
+calibration's own dataset when it recorded the camera's extrinsics (a RealSense session's
+cell.camera.T_colour_depth), or else RealSense's optical rotation with zero offset, which the output
+then says."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from estimator.geometry.transforms import transform_from_xyz_quat
+from estimator.io.calibration_file import CalibrationFile, CalibrationFileError, pose_field, read_calibration
+from estimator.io.export import FORMATS, Export, export_text, realsense_link_optical
+from estimator.io.files import write_atomic
+from estimator.io.jsonfile import read_json_object
+
+DEFAULT_CHILD = {"urdf": "camera_link"}  # other formats: the optical frame
+OPTICAL_FRAME = "camera_color_optical_frame"
+DEFAULT_LINK = "RealSense's standard optical rotation with ZERO offset (assumed: no extrinsics given)"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    from estimator.solve.methods import METHODS
+
+    p = sub.add_parser("export", help="write a calibration for ROS 2, URDF, easy_handeye2, YAML or JSON")
+    p.add_argument("calibration", type=Path, help="a hec calibrate --json output")
+    p.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=", ".join(FORMATS))
+    p.add_argument("--parent", default="tool0", help="parent frame (default: %(default)s)")
+    p.add_argument(
+        "--child",
+        help=f"child frame (default: camera_link for urdf, else {OPTICAL_FRAME}); a name not ending in "
+        "_optical_frame is the camera's root link: the link -> optical transform is composed out",
+    )
+    link = p.add_mutually_exclusive_group()
+    link.add_argument(
+        "--link-optical",
+        type=Path,
+        metavar="FILE",
+        help="the camera's link -> optical frame transform: a dataset folder (its recorded extrinsics) or a "
+        "JSON with 'T_link_optical' (4x4, metres)",
+    )
+    link.add_argument(
+        "--link-optical-values",
+        type=float,
+        nargs=7,
+        metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+        help="the same as numbers, metres and quaternion x y z w (as tf2_echo prints them)",
+    )
+    p.add_argument("--method", choices=list(METHODS), help="the result to export from a --method all file")
+    p.add_argument("--out", type=Path, metavar="FILE", help="write here (default: print)")
+
+
+def _dataset_extrinsics(folder: Path) -> np.ndarray | None:
+    """A dataset's recorded T_colour_depth (dataset.json cell.camera), or None."""
+    meta = read_json_object(folder / "dataset.json", CalibrationFileError)
+    camera = (meta.get("cell") or {}).get("camera") or {}
+    if "T_colour_depth" not in camera:
+        return None
+    return pose_field(camera, "T_colour_depth", folder / "dataset.json", CalibrationFileError)
+
+
+def link_optical(args: argparse.Namespace, cal: CalibrationFile) -> tuple[np.ndarray, str]:
+    """T_link_optical (4, 4) and where it came from, in words (module doc)."""
+    if args.link_optical_values is not None:
+        x, y, z, qx, qy, qz, qw = args.link_optical_values
+        q = np.array([qw, qx, qy, qz])
+        if not np.isclose(np.linalg.norm(q), 1.0, atol=1e-6):
+            raise ValueError(
+                f"--link-optical-values: the quaternion must have length 1, got {np.linalg.norm(q):.6g}"
+            )
+        return transform_from_xyz_quat(np.array([x, y, z]), q), "--link-optical-values"
+    path = args.link_optical
+    if path is not None:
+        if path.is_dir():
+            T_colour_depth = _dataset_extrinsics(path)
+            if T_colour_depth is None:
+                raise CalibrationFileError(
+                    f"{path / 'dataset.json'}: records no camera extrinsics (cell.camera.T_colour_depth)"
+                )
+            return realsense_link_optical(T_colour_depth), f"RealSense extrinsics recorded in {path}"
+        data = read_json_object(path, CalibrationFileError)
+        return pose_field(data, "T_link_optical", path, CalibrationFileError), str(path)
+    if cal.dataset is not None and (Path(cal.dataset) / "dataset.json").is_file():
+        T_colour_depth = _dataset_extrinsics(Path(cal.dataset))
+        if T_colour_depth is not None:
+            return realsense_link_optical(T_colour_depth), f"RealSense extrinsics recorded in {cal.dataset}"
+    return realsense_link_optical(), DEFAULT_LINK
+
+
+def run(args: argparse.Namespace) -> int:
+    """`hec export`: print the export or write it to --out (temporary file, then rename)."""
+    cal = read_calibration(args.calibration, args.method)
+    child = args.child or DEFAULT_CHILD.get(args.to, OPTICAL_FRAME)
+    export = Export(cal, args.parent, child)
+    if export.composes_link:
+        T, source = link_optical(args, cal)
+        export = Export(cal, args.parent, child, T, source)
+        if source == DEFAULT_LINK:
+            print(
+                f"note: '{child}' -> optical frame taken as {DEFAULT_LINK}; give --link-optical-values "
+                "(tf2_echo CHILD OPTICAL_FRAME) or --link-optical for your camera's",
+                file=sys.stderr,
+            )
+    elif args.link_optical is not None or args.link_optical_values is not None:
+        print(
+            f"note: '{child}' is an optical frame; the link -> optical transform is not used", file=sys.stderr
+        )
+    text = export_text(export, args.to)
+    if args.out is None:
+        sys.stdout.write(text)
+    else:
+        print(f"wrote {write_atomic(args.out, text)} ({args.to}: T_{args.parent}_{child})")
+    return 0
