@@ -29,6 +29,7 @@ from estimator.geometry.waypoints import (
 from estimator.io.dataset import DatasetError, DatasetRecorder, GroundTruth
 from estimator.io.lock import FolderLockedError
 from estimator.solve.methods import DEFAULT_METHOD, METHODS
+from estimator.solve.verify import spread_views
 from experiments import arguments
 from experiments.session.cell_config import CellConfig, CellConfigError, load_cell_config
 from experiments.session.session import LiveEstimate, SessionCell, run_session
@@ -80,6 +81,13 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--no-live", action="store_true", help="no detection and running estimate per frame")
         if name == "run":
             p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS))
+            p.add_argument(
+                "--verify",
+                type=Path,
+                metavar="CALIBRATION",
+                help="record a short verification session (5 of the waypoints) and test this calibration "
+                "(hec verify) instead of calibrating",
+            )
 
 
 # ---------------------------------------------------------------- opening a cell
@@ -285,6 +293,10 @@ def _session(
     """Record the planned moves into --out (or resume it), then report; `hec run` calibrates."""
     if not any(m.joints is not None for m in moves):
         raise RecordError("no waypoint can be used; see the reasons above")
+    if getattr(args, "verify", None) is not None:
+        moves = spread_views([m for m in moves if m.joints is not None])
+        chosen = ", ".join(str(m.waypoint.index) for m in moves)
+        print(f"verification session: {len(moves)} of the waypoints ({chosen})")
     with DatasetRecorder(
         args.out,
         cell.intrinsics,
@@ -309,10 +321,21 @@ def _session(
             file=sys.stderr,
         )
         return EXIT_STOPPED
+    if args.command == "run" and args.verify is not None:
+        return _verify(args)
     if args.command == "run":
         return _calibrate(args)
     print(f"next: hec calibrate {outcome.root}")
     return 0
+
+
+def _verify(args: argparse.Namespace) -> int:
+    from experiments import verify
+
+    print()
+    return verify.run(
+        argparse.Namespace(calibration=args.verify, dataset=args.out, method=None, json=None, quiet=True)
+    )
 
 
 def _calibrate(args: argparse.Namespace) -> int:

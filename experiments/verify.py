@@ -1,0 +1,134 @@
+"""`hec verify CALIBRATION.json DATASET`: does a calibration still hold on a few new frames
+(estimator.solve.verify)? Exit code 0 consistent, 1 moved, 2 bad input or nothing to test against."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
+
+if TYPE_CHECKING:
+    from estimator.solve.verify import Verification
+
+EXIT_MOVED = 1
+EXIT_UNTESTED = 2
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    from estimator.solve.methods import METHODS
+
+    p = sub.add_parser(
+        "verify", help="test whether a calibration still holds on a few new frames (has the camera moved?)"
+    )
+    p.add_argument("calibration", type=Path, help="a hec calibrate --json output")
+    p.add_argument("dataset", type=Path, help="dataset folder with the new frames (3 or more)")
+    p.add_argument("--method", choices=list(METHODS), help="the result to test in a --method all file")
+    p.add_argument("--json", type=Path, metavar="OUT", help="also write the verification to this JSON file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _noise_line(cal: CalibrationFile) -> str:
+    n = cal.noise
+    if n is None:
+        return "noise: as the verification dataset declares it (the calibration did not learn it)"
+    extra = f"; its self-calibrated {', '.join(n.self_calibration)}" if n.self_calibration else ""
+    return (
+        f"noise: the calibration's learned levels (corners {n.pixel_scale:.2f}x the detector's sigma, "
+        f"depth {n.depth_scale:.2f}x, arm {1e3 * n.robot_translation_sigma_m:.3f} mm / "
+        f"{np.degrees(n.robot_rotation_sigma_rad):.4f} deg){extra}"
+    )
+
+
+def format_verification(v: Verification) -> list[str]:
+    """The report's lines after the header: the shift with its sigma, the test, the verdict."""
+    from estimator.solve.verify import format_verdict
+    from experiments.calibrate.report import format_vector
+
+    sigma = np.sqrt(np.diag(v.covariance_verify))
+    mm, deg = v.test_sigma
+    lines = [
+        f"mount from these frames alone (board pose free): shift [mm] along flange x y z "
+        f"{format_vector(1e3 * v.delta[:3], '+.3f')} (+- {format_vector(1e3 * sigma[:3], '.3f')}); "
+        f"rotation [deg] about camera x y z {format_vector(np.degrees(v.delta[3:]), '+.4f')} "
+        f"(+- {format_vector(np.degrees(sigma[3:]), '.4f')})",
+        f"fit of the verification frames: chi-square per degree of freedom {v.fit_chi2_dof:.2f} (about 1 "
+        "when the calibration's noise model fits them; well above: a model error, the test is then not "
+        "to be trusted)",
+    ]
+    if v.chi2 is not None:
+        lines.append(
+            f"test: chi-square {v.chi2:.2f} on 6 degrees of freedom with the calibration's and these frames' "
+            f"covariance (1 sigma together: {mm:.3f} mm, {deg:.4f} deg)"
+        )
+    return [*lines, f"verdict: {format_verdict(v)}"]
+
+
+def run(args: argparse.Namespace) -> int:
+    """`hec verify`: the report; 0 consistent, 1 moved, 2 when the calibration has no covariance."""
+    from estimator.io.dataset import load_dataset
+    from estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+    from estimator.solve.verify import format_verdict, verification_problem, verify_mount
+    from experiments.calibrate.report import check_json_path, write_json
+    from experiments.detection import cached_or_detected
+
+    if args.json is not None:
+        check_json_path(args.json)
+    cal = read_calibration(args.calibration, args.method)
+    dataset = load_dataset(args.dataset)
+    pose_frame = dataset.metadata.get("pose_frame", "flange")
+    if pose_frame != cal.pose_frame:
+        raise CalibrationFileError(
+            f"{args.calibration}: calibrated with the robot's {cal.pose_frame} poses, but {args.dataset} "
+            f"records {pose_frame} poses"
+        )
+    observations, source = cached_or_detected(dataset, args.quiet)
+    if not cal.use_depth:
+        from experiments.calibrate.command import without_depth
+
+        observations = without_depth(observations)
+    problem = build_problem(
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        dataset_robot_noise(dataset),
+        cal.use_depth,
+        dataset_arm(dataset),
+    )
+    v = verify_mount(
+        verification_problem(problem, cal.noise), cal.T_flange_cam, cal.covariance, cal.depth_scale
+    )
+    covariance = "given" if cal.covariance is not None else "none"
+    print(f"calibration: {cal.path} ({cal.method}, covariance {covariance})")
+    print(
+        f"verification: {dataset.root} ({len(problem.frames)} frames, {problem.observation_count} marker "
+        f"observations; observations {source})"
+    )
+    for line in problem.rejected:
+        print(f"  left out: {line}")
+    print(_noise_line(cal))
+    print("\n".join(format_verification(v)))
+    if dataset.ground_truth is not None:
+        from estimator.geometry.transforms import pose_error
+
+        dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.T_flange_cam)
+        print(
+            f"vs ground truth: the verification cell's true mount is {1e3 * dt:.3f} mm and "
+            f"{np.degrees(dr):.4f} deg from the calibration"
+        )
+    if args.json is not None:
+        data = {"calibration": str(cal.path), "method": cal.method, "dataset": str(dataset.root)}
+        print(f"wrote {write_json(args.json, data | v.to_dict() | {'verdict': format_verdict(v)})}")
+    if v.moved is None:
+        print(
+            f"hec: error: {cal.path}: field 'covariance' is null ({cal.method} gives no uncertainty): "
+            "cannot tell a moved camera from the calibration's own error; calibrate with a method that "
+            "reports a covariance (ekf, iekf, ukf, batch, seed-ekf)",
+            file=sys.stderr,
+        )
+        return EXIT_UNTESTED
+    return EXIT_MOVED if v.moved else 0
