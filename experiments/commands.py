@@ -7,11 +7,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from estimator.io.calibration_file import CalibrationFileError
 from estimator.io.dataset import DatasetError
 from estimator.observe.observations import ObservationCacheError
 from estimator.solve.problem import CalibrationInputError
 from estimator.targets.board import BoardDefinitionError
 from experiments import arguments
+from experiments import export as export_command
+from experiments import verify as verify_command
 from experiments.regress import command as regress
 from experiments.session import record, teach
 from experiments.sweep import command as sweep
@@ -19,6 +22,7 @@ from experiments.sweep import report
 
 USER_ERRORS = (
     BoardDefinitionError,
+    CalibrationFileError,
     DatasetError,
     ObservationCacheError,
     CalibrationInputError,
@@ -148,6 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_detect(sub)
     _add_calibrate(sub)
     _add_board(sub)
+    export_command.add_parser(sub)
+    verify_command.add_parser(sub)
     sweep.add_parser(sub)
     report.add_parser(sub)
     regress.add_parser(sub)
@@ -177,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
             from experiments.calibrate.command import run as run_calibrate
 
             return run_calibrate(args)
+        if args.command in ("export", "verify"):
+            return {"export": export_command, "verify": verify_command}[args.command].run(args)
         if args.command in ("record", "run"):
             return record.run(args)
         if args.command == "teach":

@@ -15,7 +15,8 @@ from estimator.geometry.lie import pose_minus, so3_log
 from estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
 from estimator.io.files import write_atomic
 from estimator.solve.calibration import Calibration
-from estimator.solve.problem import RobotPoseNoise
+from estimator.solve.pick_error import PickError, pick_error, true_pick_error_mm, working_distance
+from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
 from experiments.calibrate.loo import format_loo, loo_to_dict
 
 TRANSFORM_MEANING = (
@@ -34,6 +35,7 @@ NO_UNCERTAINTY = "none (OpenCV gives no uncertainty)"
 
 
 WORST_SHOWN = 3
+PICK_KEY = "pick_error"
 
 
 def pose_numbers(T: np.ndarray) -> dict:
@@ -59,6 +61,41 @@ def ground_truth_errors(cal: Calibration, T_true: np.ndarray) -> dict:
         delta = pose_minus(T_true, cal.T_flange_cam)
         out["error_nees"] = float(delta @ np.linalg.solve(cal.covariance, delta))
     return out
+
+
+def add_pick_error(cal: Calibration, problem: CalibrationProblem) -> None:
+    """cal.diagnostics[PICK_KEY]: the pick error (estimator.solve.pick_error) of a result with a
+    covariance and a board pose or landmarks; nothing otherwise."""
+    if cal.covariance is None:
+        return
+    if cal.T_base_board is not None:
+        centre_base = cal.T_base_board[:3, 3]
+    elif cal.landmarks_base:
+        centre_base = np.mean(np.concatenate(list(cal.landmarks_base.values())), axis=0)
+    else:
+        return
+    distance = working_distance(problem, cal.T_flange_cam, centre_base)
+    cal.diagnostics[PICK_KEY] = pick_error(cal.T_flange_cam, cal.covariance, distance)
+
+
+def _pick_dict(cal: Calibration, T_true: np.ndarray | None) -> dict | None:
+    pick: PickError | None = cal.diagnostics.get(PICK_KEY)
+    if pick is None:
+        return None
+    truth = None if T_true is None else true_pick_error_mm(cal.T_flange_cam, T_true, pick.distance_m)
+    return pick.to_dict() | {"true_mm": truth}
+
+
+def _format_pick(cal: Calibration, T_true: np.ndarray | None) -> list[str]:
+    pick = _pick_dict(cal, T_true)
+    if pick is None:
+        return []
+    truth = "" if pick["true_mm"] is None else f"; against the truth {pick['true_mm']:.3f} mm"
+    return [
+        f"pick error at the working distance ({1e3 * pick['distance_m']:.0f} mm, a point on the optical "
+        f"axis) in the base frame, from the uncertainty: {pick['rms_mm']:.3f} mm RMS, 95 % within "
+        f"{pick['p95_mm']:.3f} mm{truth}"
+    ]
 
 
 def _worst_markers(cal: Calibration) -> list:
@@ -178,6 +215,7 @@ def _format_run(cal: Calibration) -> list[str]:
 def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> str:
     """The full text report of one Calibration; with T_true (4, 4) its errors against it."""
     lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam), *_format_uncertainty(cal)]
+    lines += _format_pick(cal, T_true)
     lines += [*_format_residuals(cal), *_format_noise(cal), *format_loo(cal), *_format_run(cal)]
     lines += [f"warning: {w}" for w in cal.warnings] or ["warnings: none"]
     if T_true is not None:
@@ -213,6 +251,7 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
         "covariance_convention": COVARIANCE_CONVENTION,
         "sigma_translation_mm": _floats(cal.sigma_translation_mm),
         "sigma_rotation_deg": _floats(cal.sigma_rotation_deg),
+        PICK_KEY: _pick_dict(cal, T_true),
         "T_base_board": _floats(cal.T_base_board),
         "landmarks_base": None
         if cal.landmarks_base is None
