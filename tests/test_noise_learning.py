@@ -19,7 +19,8 @@ from estimator.solve import noise_learning
 from estimator.solve.calibration import MethodOptions, Prior
 from estimator.solve.measurement_model import HandEyeState, predict_frame
 from estimator.solve.methods import run_method
-from estimator.solve.noise_learning import NoiseLevels, learn_noise, scaled_problem
+from estimator.solve.noise_learning import learn_noise
+from estimator.solve.noise_levels import NoiseLevels, scaled_problem
 from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem
 from estimator.solve.self_calibration import CAMERA_NUISANCE, adjusted_problem
 from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene

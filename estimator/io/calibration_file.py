@@ -136,6 +136,13 @@ def _noise(result: dict, path: Path) -> LearnedNoiseLevels | None:
     return levels
 
 
+def _depth_agreed(result: dict) -> bool:
+    """False when the calibration left the depths out because they disagreed with the pixels
+    (its 'noise.depth_check.used'; estimator.solve.depth_check)."""
+    check = (result.get("noise") or {}).get("depth_check") or {}
+    return bool(check.get("used", True))
+
+
 def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
     """The calibration in a `hec calibrate --json` file (with several methods' results: method's).
     Raises CalibrationFileError naming the file and field: missing, not JSON, another format (a
@@ -170,7 +177,7 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
         covariance=covariance,
         noise=_noise(result, path),
         depth_scale=None if depth_scale is None else float(depth_scale),
-        use_depth=bool(result.get("use_depth", True)),
+        use_depth=bool(result.get("use_depth", True)) and _depth_agreed(result),
         pose_frame=str(result.get("pose_frame", "flange")),
         dataset=result.get("dataset"),
         data=result,

@@ -98,6 +98,16 @@ def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int)
             f"{np.degrees(declared.rotation_sigma_rad):.3f} deg (a UR's absolute accuracy with nominal "
             "kinematics is millimetres, its repeatability 0.1 mm): the learned level is used"
         )
+    depth = learned.depth
+    if depth is not None and not depth.used and not depth.agrees:
+        check.patterns["depth_check_p"] = depth.p_value
+        check.warnings.append(
+            f"the depths disagree with the pixels: with them the mount moves {depth.shift_mm:.2f} mm / "
+            f"{depth.shift_deg:.3f} deg (p = {depth.p_value:.2g}) and strain the corners and flange poses "
+            f"({depth.misfit_depth:.2f}x their noise, {depth.misfit_pixels:.2f}x without); likely a "
+            "depth-to-colour misregistration, correlated depth errors or flying pixels the model does not "
+            "describe: calibrated from the pixels alone"
+        )
     if learned.theta is None:
         if ratio.get("pixels", 0) > BAD_FIT:
             check.warnings += _pixel_patterns(problem, learned, check.patterns)

@@ -14,7 +14,8 @@ from estimator.solve.calibration import Calibration, MethodOptions, marker_resid
 from estimator.solve.filters import run_filter
 from estimator.solve.fit_check import check_fit
 from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.noise_learning import LearnedNoise, learn_noise, scaled_problem
+from estimator.solve.noise_learning import LearnedNoise, learn_noise
+from estimator.solve.noise_levels import scaled_problem
 from estimator.solve.observability import observability
 from estimator.solve.problem import MIN_FRAMES, CalibrationInputError, CalibrationProblem
 from estimator.solve.seed_ekf import seed_ekf
@@ -172,7 +173,7 @@ def _account_for_learning(
     if adjusted is not problem and learned.consider_covariance is not None and result.covariance is not None:
         # The method solved with the self-calibrated camera fixed: add what its uncertainty costs.
         result.covariance = result.covariance + learned.consider_covariance
-    fit = check_fit(problem, learned, len(rejected))
+    fit = check_fit(learned.measured(problem), learned, len(rejected))
     result.diagnostics["noise"] = learned
     result.diagnostics["fit"] = fit
     result.warnings.extend(w for w in fit.warnings if w not in result.warnings)

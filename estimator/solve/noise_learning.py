@@ -38,10 +38,12 @@ from estimator.solve.batch import (
     weighted_jacobian,
 )
 from estimator.solve.calibration import MethodOptions, Prior
+from estimator.solve.depth_check import DepthCheck, depth_check, has_depth, misfit, pixels_only
 from estimator.solve.filters import initial_covariance
 from estimator.solve.initialise import initial_state
 from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.problem import CalibrationProblem, MarkerMeasurement, RobotPoseNoise
+from estimator.solve.noise_levels import NoiseLevels, declared_levels, scaled_problem
+from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
 from estimator.solve.self_calibration import (
     NuisanceUncertainty,
     SelfCalibrationObjective,
@@ -74,24 +76,6 @@ _TAIL = 2 * norm.sf(HUBER_SCALE)
 _CLIPPED_SQUARE = float(1 - _TAIL - 2 * HUBER_SCALE * norm.pdf(HUBER_SCALE) + HUBER_SCALE**2 * _TAIL)
 
 
-@dataclass(frozen=True)
-class NoiseLevels:
-    """Noise levels of a problem: pixel_scale and depth_scale multiply the declared corner and
-    depth sigmas; robot is the flange pose noise itself."""
-
-    pixel_scale: float
-    depth_scale: float
-    robot: RobotPoseNoise
-
-    def to_dict(self) -> dict:
-        return {
-            "pixel_scale": self.pixel_scale,
-            "depth_scale": self.depth_scale,
-            "robot_translation_sigma_m": self.robot.translation_sigma_m,
-            "robot_rotation_sigma_rad": self.robot.rotation_sigma_rad,
-        }
-
-
 @dataclass
 class LearnedNoise:
     """What the data say about the noise. declared: the problem's levels; learned: the converged
@@ -107,7 +91,10 @@ class LearnedNoise:
     groups_tried (every group freed at first) and groups_kept
     (estimator.solve.self_calibration.NUISANCE_GROUPS), consider_covariance (6, 6) that
     T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
-    ratios and chi2_dof, with the adjusted model."""
+    ratios and chi2_dof, with the adjusted model. mount_covariance: (6, 6) T_flange_cam's covariance at
+    the optimum, theta free. depth: with depths, whether they agree with the pixels
+    (estimator.solve.depth_check); when they do not, everything here is learned from the pixels
+    alone (measured(problem) gives that problem)."""
 
     declared: NoiseLevels
     learned: NoiseLevels
@@ -128,14 +115,23 @@ class LearnedNoise:
     consider_covariance: np.ndarray | None = None
     ratios_after: dict[str, float] | None = None
     chi2_dof_after: float | None = None
+    mount_covariance: np.ndarray | None = None
+    depth: DepthCheck | None = None
 
     @property
     def theta_sigma(self) -> np.ndarray | None:
         """theta's 1-sigmas (theta_names), None without self-calibration."""
         return None if self.theta_covariance is None else np.sqrt(np.diag(self.theta_covariance))
 
+    def measured(self, problem: CalibrationProblem) -> CalibrationProblem:
+        """The problem's measurements the learning used: without the depths when they disagreed
+        with the pixels (estimator.solve.depth_check), else all of them."""
+        return problem if self.depth is None or self.depth.used else pixels_only(problem)
+
     def adjusted(self, problem: CalibrationProblem) -> CalibrationProblem:
-        """The problem with the self-calibrated camera, board, depth and arm (unchanged without)."""
+        """The measured problem with the self-calibrated camera, board, depth and arm (unchanged
+        without)."""
+        problem = self.measured(problem)
         return problem if self.theta is None else adjusted_problem(problem, self.theta, self.theta_names)
 
     def to_dict(self) -> dict:
@@ -147,6 +143,7 @@ class LearnedNoise:
             "iterations": self.iterations,
             "outliers": len(self.outliers),
             "time_s": self.time_s,
+            "depth_check": None if self.depth is None else self.depth.to_dict(),
             "self_calibration": None
             if self.theta is None
             else {
@@ -167,33 +164,6 @@ def prior_conflict(data_only: HandEyeState, data_covariance: np.ndarray, prior: 
     return float(e @ np.linalg.solve(data_covariance[:6, :6] + prior.covariance, e))
 
 
-def declared_levels(problem: CalibrationProblem) -> NoiseLevels:
-    return NoiseLevels(1.0, 1.0, problem.robot_noise)
-
-
-def scaled_problem(
-    problem: CalibrationProblem, levels: NoiseLevels, leave_out: set[tuple[int, int]] = frozenset()
-) -> CalibrationProblem:
-    """The problem with its pixel and depth whitening divided by the levels' scales, its robot
-    noise replaced, and the (frame, marker_id) pairs of leave_out removed (frames left without a
-    marker are dropped)."""
-    frames = []
-    for f in problem.frames:
-        markers = [_scaled(m, levels) for m in f.markers if (f.frame, m.marker_id) not in leave_out]
-        if markers:
-            frames.append(replace(f, markers=markers))
-    return replace(problem, frames=frames, robot_noise=levels.robot)
-
-
-def _scaled(m: MarkerMeasurement, levels: NoiseLevels) -> MarkerMeasurement:
-    if levels.pixel_scale == 1.0 and levels.depth_scale == 1.0:
-        return m
-    scale = np.ones(len(m.whitening))
-    scale[: m.pixel_rows] = 1.0 / levels.pixel_scale
-    scale[m.pixel_rows :] = 1.0 / levels.depth_scale
-    return replace(m, whitening=m.whitening * scale[:, None])
-
-
 def _row_groups(
     objective: BatchObjective | SelfCalibrationObjective, problem: CalibrationProblem
 ) -> np.ndarray:
@@ -211,10 +181,22 @@ def _row_groups(
 
 def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
     """Iterated variance-component estimation (see the module doc). The state is the batch
-    optimum's map model and depth-scale choice (options)."""
+    optimum's map model and depth-scale choice (options). With depths, learned twice, with them and
+    from the pixels alone: the pixels' result when the depths disagree (estimator.solve.depth_check)."""
     started = time.perf_counter()
     with threadpool_limits(limits=1, user_api="blas"):
         learned = _learn_noise(problem, options)
+        if has_depth(problem):
+            pixels = _learn_noise(pixels_only(problem), options)
+            robot = problem.robot_noise if not problem.robot_noise.is_zero else ROBOT_FLOOR
+            check = depth_check(
+                learned.state.T_flange_cam,
+                learned.mount_covariance,
+                pixels.state.T_flange_cam,
+                pixels.mount_covariance,
+                (misfit(learned.learned, robot), misfit(pixels.learned, robot)),
+            )
+            learned = replace(learned if check.used else pixels, depth=check)
     learned.time_s = time.perf_counter() - started
     return learned
 
@@ -309,6 +291,13 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     objective = BatchObjective(scaled, start, P0, options.prior)
     params = final.params[: objective.size]
     frame_residuals = objective.frame_residuals(params)
+    _, J = weighted_jacobian(
+        _objective(scaled_problem(problem, final.levels), start, P0, options, names),
+        final.params,
+        options.robust,
+    )
+    to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
+    mount_covariance = to_local @ np.linalg.inv(J.T @ J)[:6, :6] @ to_local.T
     prior_distance = None
     if options.prior is not None:
         prior_distance = _prior_distance(scaled, start, P0, params, options)
@@ -331,6 +320,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         consider_covariance=consider,
         ratios_after=ratios_after,
         chi2_dof_after=chi2_dof_after,
+        mount_covariance=0.5 * (mount_covariance + mount_covariance.T),
     )
 
 

@@ -32,7 +32,7 @@ from estimator.solve.calibration import MethodOptions
 from estimator.solve.filters import initial_covariance
 from estimator.solve.initialise import board_pose_pnp, mean_pose
 from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.noise_learning import NoiseLevels, scaled_problem
+from estimator.solve.noise_levels import NoiseLevels, scaled_problem
 from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
 from estimator.solve.self_calibration import adjusted_problem
 

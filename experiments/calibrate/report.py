@@ -200,6 +200,7 @@ def _format_noise(cal: Calibration) -> list[str]:
         f"({1e3 * noise.time_s:.0f} ms)",
         f"goodness of fit: chi-square per degree of freedom at the declared noise {noise.chi2_dof:.2f} "
         f"(1 = the model fits; {fit})",
+        *([] if noise.depth is None else [noise.depth.describe()]),
     ]
 
 
