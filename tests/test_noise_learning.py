@@ -73,6 +73,7 @@ def test_ideal_scene_learns_the_declared_levels_and_stays_honest() -> None:
         assert abs(levels.pixel_scale - 1.0) < 0.1, (seed, levels)
         assert abs(levels.depth_scale - 1.0) < 0.2, (seed, levels)
         assert learned.theta is None, (seed, levels, learned.theta)
+        assert learned.depth.informative and learned.depth.used, (seed, learned.depth.describe())
         result = run_method("ekf", problem, MethodOptions(), observations, learned)
         assert result.warnings == [], (seed, result.warnings)
         assert result.observations_rejected == 0, seed

@@ -103,8 +103,8 @@ def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int)
         check.patterns["depth_check_p"] = depth.p_value
         check.warnings.append(
             f"the depths disagree with the pixels: with them the mount moves {depth.shift_mm:.2f} mm / "
-            f"{depth.shift_deg:.3f} deg (p = {depth.p_value:.2g}) and strain the corners and flange poses "
-            f"({depth.misfit_depth:.2f}x their noise, {depth.misfit_pixels:.2f}x without); likely a "
+            f"{depth.shift_deg:.3f} deg (p = {depth.p_value:.2g}), and the corners and flange poses fit "
+            f"{depth.misfit_depth:.2f}x their noise with them, {depth.misfit_pixels:.2f}x without; likely a "
             "depth-to-colour misregistration, correlated depth errors or flying pixels the model does not "
             "describe: calibrated from the pixels alone"
         )
