@@ -7,10 +7,10 @@ view: on the realistic cell they moved it by 2-3 mm at 6 sigma, while the pixels
 with the one learned from the pixels alone, X_pixels with C_pixels. When the depths are right, the
 estimate with them is the efficient one and the difference d = X_depth - X_pixels (6,) has covariance
 C_pixels - C_depth (Hausman): chi2 = d^T (C_pixels - C_depth)^-1 d follows chi2(k), over the k
-directions where the depths take at least MIN_INFORMATION of the pixels-only variance away. The
-depths are used when there is such a direction and the test passes at SIGNIFICANCE. Where they add
-next to nothing (renders, whose corners are good to 0.02 px), the pixels alone are as accurate and
-need no depth model: then d is tested against C_pixels alone (chi2(6)). When the two disagree,
+directions where the depths take at least MIN_INFORMATION of the pixels-only variance away; where
+they take less in every direction (renders, whose corners are good to 0.02 px), d is tested against
+C_pixels alone (chi2(6)), which only catches a pull well beyond the pixels' own uncertainty. The
+depths are used when the test passes at SIGNIFICANCE. When the two disagree,
 the depths are kept only if they fit the measurements both share (the corners and the flange poses)
 clearly better (MISFIT_MARGIN), else the pixels win: misfit is the largest of the learned levels
 over the declared ones. Depths the model cannot describe strain the corners (the realistic cell:
@@ -46,7 +46,8 @@ MIN_INFORMATION = 0.15
 class DepthCheck:
     """delta: (6,) the mount with depths minus the one from the pixels alone (dt metres along the
     flange axes, dtheta radians about the camera axes); chi2 over dof directions and its p_value;
-    informative: whether the depths take enough variance away to be tested (module doc);
+    informative: whether the depths take enough variance away to be tested against what they take
+    (else against the pixels' covariance; module doc);
     misfit_depth, misfit_pixels: the shared measurements' misfit (module doc) with the depths and
     without; used: whether the calibration uses them."""
 
@@ -64,9 +65,7 @@ class DepthCheck:
 
     @property
     def used(self) -> bool:
-        if self.agrees:
-            return self.informative
-        return MISFIT_MARGIN * self.misfit_depth < self.misfit_pixels
+        return self.agrees or MISFIT_MARGIN * self.misfit_depth < self.misfit_pixels
 
     @property
     def shift_mm(self) -> float:
@@ -87,11 +86,7 @@ class DepthCheck:
             f"{self.misfit_pixels:.2f}x without"
         )
         if self.agrees:
-            if self.used:
-                return f"depth: used; it agrees with the pixels ({test})"
-            return (
-                f"depth: not used; it adds next to nothing to the pixels here and agrees with them ({test})"
-            )
+            return f"depth: used; it agrees with the pixels ({test})"
         if self.used:
             return f"depth: used; the pixels alone disagree with it and fit worse ({test}; {fits})"
         return f"depth: not used; it disagrees with the pixels and does not fit better ({test}; {fits})"
