@@ -73,17 +73,21 @@ def simulate(
     force: bool = False,
     preview: bool = False,
     progress: bool = True,
+    noise_seed: int | None = None,
 ) -> SimulationResult:
     """Render every reachable waypoint of the scenario into a dataset at out_dir.
 
     Waypoints that cannot be used are skipped, reported on stderr and listed
-    in dataset.json with their reason. ``seed`` drives every noise model: the true cell from
-    default_rng(seed), each capture from sim.noise.waypoint_rng(seed, waypoint index).
+    in dataset.json with their reason. ``seed`` drives every noise model: the true cell (its model
+    errors: the arm's kinematics, the lens, the printed board) from default_rng(seed), each capture
+    from sim.noise.waypoint_rng(noise_seed, waypoint index), noise_seed default seed (another one: the
+    same cell, new noise in every frame).
     """
     if Path(out_dir).exists() and not Path(out_dir).is_dir():  # --force replaces a dataset, not a file
         raise FileExistsError(f"{out_dir} is a file, not a dataset folder; it is not replaced")
     waypoints = scenario_waypoints(scenario)
     rng = np.random.default_rng(seed)
+    noise_seed = seed if noise_seed is None else noise_seed
     cell = SimCell(scenario, rng)
     truth = cell.ground_truth()
     skipped: list[tuple[int, str]] = []
@@ -112,7 +116,7 @@ def simulate(
                         file=sys.stderr,
                     )
                     continue
-                frame, frame_truth = cell.capture(waypoint_rng(seed, waypoint.index))
+                frame, frame_truth = cell.capture(waypoint_rng(noise_seed, waypoint.index))
                 module_px.append(cell.smallest_module_px())
                 writer.add_frame(frame)
                 truth.T_base_flange.append(frame_truth.T_base_flange)
@@ -124,6 +128,7 @@ def simulate(
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
             extra = simulation_metadata(scenario, seed)
             extra["simulation"] |= {
+                "noise_seed": noise_seed,
                 "waypoints": len(waypoints),
                 "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
             }

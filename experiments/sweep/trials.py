@@ -32,7 +32,7 @@ from estimator.geometry.waypoints import (
     rotation_rich_waypoints,
     write_waypoint_file,
 )
-from estimator.io.dataset import load_dataset
+from estimator.io.dataset import Dataset, load_dataset
 from estimator.observe.observations import camera_points
 from estimator.solve.problem import CalibrationInputError, build_problem, dataset_arm, dataset_robot_noise
 from experiments.sweep.config import SweepConfig, cell_scenario
@@ -200,18 +200,26 @@ def _measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator
     return observations, board, intrinsics, robot, None, X, T_base_board
 
 
-def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
-    """Render the trial into a dataset (temporary unless task.keep_dir), detect, and return the inputs
-    (with the arm behind its poses: a measurement trial has none)."""
+def render_views(
+    scenario: Any,
+    T_flange_cam: np.ndarray,
+    flange: list[np.ndarray],
+    sim_seed: int,
+    name: str,
+    out: Path | None = None,
+    example: bool = False,
+    noise_seed: int | None = None,
+) -> tuple[Dataset, list]:
+    """Render the scenario's cell with the mount T_flange_cam (4, 4) at the T_base_flange (4, 4)
+    targets flange into a dataset at out (a temporary folder, removed again, when None) and detect
+    it: (the dataset, its observations). sim_seed draws the true cell, noise_seed (default sim_seed)
+    each frame's noise (sim.simulate.simulate); name: the trial, for messages and the scratch
+    folder's name; example: with previews and detection overlays."""
     from estimator.targets.qr import DetectorSettings
     from experiments.detection import detect_and_cache, overlay_writer
     from sim.simulate import SimulationError, simulate
 
-    board = scenario.board_definition()
-    X = _mount(scenario, task.parameters["mount"], rng)
-    flange = _flange_poses(scenario, board, task.parameters, X, rng)
-    sim_seed = int(rng.integers(0, 2**63 - 1))
-    tmp = Path(tempfile.mkdtemp(prefix=f"hec-sweep-{task.trial_id}-"))
+    tmp = Path(tempfile.mkdtemp(prefix=f"hec-sweep-{name}-"))
     _TEMPORARY.add(tmp)
     try:
         waypoint_file = tmp / "waypoints.csv"
@@ -220,26 +228,46 @@ def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> 
         )
         data = scenario.to_dict()
         data["mount"] = {
-            "translation_m": [float(v) for v in X[:3, 3]],
-            "rotation_rpy_deg": [float(v) for v in np.degrees(rpy_from_transform(X))],
+            "translation_m": [float(v) for v in T_flange_cam[:3, 3]],
+            "rotation_rpy_deg": [float(v) for v in np.degrees(rpy_from_transform(T_flange_cam))],
         }
         data["trajectory"] = {**data["trajectory"], "kind": "file", "file": str(waypoint_file)}
-        trial_scenario = scenario_from_dict(data, f"trial {task.trial_id}", Path(task.base_dir))
-        out = Path(task.keep_dir) / task.trial_id if task.keep_dir else tmp / "dataset"
-        out = Path(task.example_dir) if task.example_dir else out
+        trial_scenario = scenario_from_dict(data, f"trial {name}", Path(scenario.base_dir))
+        out = tmp / "dataset" if out is None else out
         try:
             with contextlib.redirect_stderr(io.StringIO()):  # skipped waypoints: the dataset lists them
                 result = simulate(
-                    trial_scenario, out, sim_seed, force=True, preview=bool(task.example_dir), progress=False
+                    trial_scenario,
+                    out,
+                    sim_seed,
+                    force=True,
+                    preview=example,
+                    progress=False,
+                    noise_seed=noise_seed,
                 )
         except (SimulationError, WaypointFileError) as exc:
             raise SweepError(f"simulation: {exc}") from None
         dataset = load_dataset(result.out_dir)
-        on_frame = overlay_writer(dataset) if task.example_dir else None
+        on_frame = overlay_writer(dataset) if example else None
         observations, _, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True, on_frame=on_frame)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         _TEMPORARY.discard(tmp)
+    return dataset, observations
+
+
+def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
+    """Render the trial into a dataset (temporary unless task.keep_dir), detect, and return the inputs
+    (with the arm behind its poses: a measurement trial has none)."""
+    board = scenario.board_definition()
+    X = _mount(scenario, task.parameters["mount"], rng)
+    flange = _flange_poses(scenario, board, task.parameters, X, rng)
+    sim_seed = int(rng.integers(0, 2**63 - 1))
+    out = Path(task.keep_dir) / task.trial_id if task.keep_dir else None
+    out = Path(task.example_dir) if task.example_dir else out
+    dataset, observations = render_views(
+        scenario, X, flange, sim_seed, task.trial_id, out, example=bool(task.example_dir)
+    )
     truth, robot = dataset.ground_truth, dataset_robot_noise(dataset)
     arm = dataset_arm(dataset)
     return observations, dataset.board, dataset.intrinsics, robot, arm, truth.T_flange_cam, truth.T_base_board
