@@ -28,3 +28,13 @@ def run_hec(argv: list[str]) -> tuple[int, str, str]:
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         code = main(argv)
     return code, out.getvalue(), err.getvalue()
+
+
+def simulated_dataset(folder: Path, views: int) -> Path:
+    """folder/ds: the first views default views rendered by `hec simulate` (scenario_file)."""
+    out = folder / "ds"
+    code, _, err = run_hec(
+        ["simulate", "--out", str(out), "--scenario", str(scenario_file(folder, views)), "--quiet"]
+    )
+    assert code == 0, err
+    return out

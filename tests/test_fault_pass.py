@@ -21,7 +21,7 @@ from estimator.geometry.waypoints import write_waypoint_file
 from experiments.cli import main
 from sim.scenario import Scenario
 from sim.simulate import scenario_waypoints
-from tests.hec_cli import run_hec, scenario_file
+from tests.hec_cli import run_hec, scenario_file, simulated_dataset
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -29,12 +29,7 @@ REPO = Path(__file__).resolve().parent.parent
 @pytest.fixture(scope="module")
 def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three simulated frames, detected."""
-    root = tmp_path_factory.mktemp("fault_pass")
-    out = root / "ds"
-    code, _, err = run_hec(
-        ["simulate", "--out", str(out), "--scenario", str(scenario_file(root, 3)), "--quiet"]
-    )
-    assert code == 0, err
+    out = simulated_dataset(tmp_path_factory.mktemp("fault_pass"), 3)
     assert run_hec(["detect", str(out), "--quiet"])[0] == 0
     return out
 

@@ -1,8 +1,12 @@
 """hec verify on measurement-level data (fixed seed): a mount moved by 1 mm and 0.2 degrees is found
 and its shift estimated, an unmoved one is consistent, and without the calibration's covariance the
-verdict says it cannot test."""
+verdict says it cannot test. The command line (5 rendered views) exits 2 on an OpenCV method's
+calibration (no covariance) and on a file of another format, naming it."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +28,8 @@ from estimator.solve.verify import (
 )
 from experiments.bench.verify import learned_levels
 from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
+from experiments.verify import EXIT_UNTESTED
+from tests.hec_cli import run_hec, simulated_dataset
 
 SHIFT = np.array([0.0006, -0.0006, 0.0005, *np.radians([0.12, 0.1, -0.12])])  # ~1 mm, ~0.2 deg
 
@@ -84,3 +90,53 @@ def test_the_pick_error_from_the_covariance_matches_the_truth_on_average(calibra
     assert pick.rms_mm == pytest.approx(np.sqrt(np.mean(errors**2)), rel=0.15)
     assert pick.p95_mm == pytest.approx(np.quantile(errors, 0.95), rel=0.15)
     assert true_pick_error_mm(cal.T_flange_cam, X, 0.45) < 4 * pick.rms_mm
+
+
+@pytest.fixture(scope="module")
+def five_views(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The first 5 default views rendered into a dataset (`hec simulate`)."""
+    return simulated_dataset(tmp_path_factory.mktemp("verify_cli"), 5)
+
+
+def test_an_opencv_calibration_gets_the_shift_and_exit_2_it_cannot_be_tested(
+    five_views: Path, tmp_path: Path
+) -> None:
+    cal = tmp_path / "tsai.json"
+    argv = [
+        "calibrate",
+        str(five_views),
+        "--method",
+        "opencv-tsai",
+        "--json",
+        str(cal),
+        "--quiet",
+        "--no-loo",
+    ]
+    code, _, err = run_hec(argv)
+    assert code == 0, err
+    code, out, err = run_hec(["verify", str(cal), str(five_views), "--quiet"])
+    assert code == EXIT_UNTESTED
+    assert "verdict: not tested: the mount differs by about " in out and "covariance none" in out
+    assert f"{cal}: field 'covariance' is null (opencv-tsai gives no uncertainty)" in err
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "words"),
+    [
+        (
+            "dataset.json",
+            {"format": "hec-dataset", "version": 1},
+            "is a 'hec-dataset' file, not a calibration",
+        ),
+        ("detections.json", {"format": "hec-detections", "version": 1}, "is a 'hec-detections' file"),
+        ("rows.json", {"rows": []}, "not a calibration: no field 'T_flange_cam'"),
+    ],
+)
+def test_a_file_of_another_format_exits_2_naming_it(
+    five_views: Path, tmp_path: Path, name: str, content: dict, words: str
+) -> None:
+    path = tmp_path / name
+    path.write_text(json.dumps(content))
+    code, out, err = run_hec(["verify", str(path), str(five_views), "--quiet"])
+    assert code == EXIT_UNTESTED and out == ""
+    assert f"{path}: {words}" in err
