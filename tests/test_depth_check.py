@@ -30,11 +30,14 @@ def test_informative_depths_that_agree_are_used_and_a_pull_is_not() -> None:
     sigma = np.sqrt(np.diag(C_PIXELS - C_depth))
     agreeing = _check(0.5 * sigma, C_depth)
     assert agreeing.informative and agreeing.dof == 6 and agreeing.used, agreeing
-    pulled = _check(6.0 * sigma * np.eye(6)[1], C_depth)
-    assert pulled.p_value < SIGNIFICANCE and not pulled.used, pulled
+    pulled = _check(10.0 * sigma * np.eye(6)[1], C_depth)
+    assert pulled.p_value < SIGNIFICANCE and pulled.p_pull < SIGNIFICANCE and not pulled.used, pulled
     assert "not used; it disagrees with the pixels" in pulled.describe()
     # ... unless the pixels alone fit far worse (a print scale only the depths tell from the distance)
-    assert _check(6.0 * sigma * np.eye(6)[1], C_depth, misfits=(1.2, 7.5)).used
+    assert _check(10.0 * sigma * np.eye(6)[1], C_depth, misfits=(1.2, 7.5)).used
+    # A pull the depths cannot explain but within the pixels' own uncertainty matters to no one.
+    slight = _check(10.0 * np.sqrt(np.diag(0.2 * C_PIXELS)) * np.eye(6)[1], 0.8 * C_PIXELS)
+    assert slight.informative and slight.p_value < SIGNIFICANCE < slight.p_pull and slight.used, slight
 
 
 def test_depths_that_add_next_to_nothing_are_tested_against_the_pixels_alone() -> None:

@@ -10,7 +10,8 @@ C_pixels - C_depth (Hausman): chi2 = d^T (C_pixels - C_depth)^-1 d follows chi2(
 directions where the depths take at least MIN_INFORMATION of the pixels-only variance away; where
 they take less in every direction (renders, whose corners are good to 0.02 px), d is tested against
 C_pixels alone (chi2(6)), which only catches a pull well beyond the pixels' own uncertainty. The
-depths are used when the test passes at SIGNIFICANCE. When the two disagree,
+depths disagree when both tests fail at SIGNIFICANCE: where every estimate is good to 0.01 mm (exact
+flange poses), the first alone flagged a pull of 0.01 mm that matters to no one. When the two disagree,
 the depths are kept only if they fit the measurements both share (the corners and the flange poses)
 clearly better (MISFIT_MARGIN), else the pixels win: misfit is the largest of the learned levels
 over the declared ones. Depths the model cannot describe strain the corners (the realistic cell:
@@ -46,6 +47,7 @@ MIN_INFORMATION = 0.15
 class DepthCheck:
     """delta: (6,) the mount with depths minus the one from the pixels alone (dt metres along the
     flange axes, dtheta radians about the camera axes); chi2 over dof directions and its p_value;
+    p_pull: the test of delta against the pixels' own covariance (chi2(6));
     informative: whether the depths take enough variance away to be tested against what they take
     (else against the pixels' covariance; module doc);
     misfit_depth, misfit_pixels: the shared measurements' misfit (module doc) with the depths and
@@ -55,13 +57,14 @@ class DepthCheck:
     chi2: float
     dof: int
     p_value: float
+    p_pull: float
     informative: bool
     misfit_depth: float
     misfit_pixels: float
 
     @property
     def agrees(self) -> bool:
-        return self.p_value >= SIGNIFICANCE
+        return max(self.p_value, self.p_pull) >= SIGNIFICANCE
 
     @property
     def used(self) -> bool:
@@ -81,6 +84,8 @@ class DepthCheck:
             f"with them the mount moves {self.shift_mm:.2f} mm / {self.shift_deg:.3f} deg, "
             f"p = {self.p_value:.2g} over {self.dof} directions"
         )
+        if self.informative:
+            test += f", against the pixels' own uncertainty p = {self.p_pull:.2g}"
         fits = (
             f"the corners and flange poses fit {self.misfit_depth:.2f}x their noise with them, "
             f"{self.misfit_pixels:.2f}x without"
@@ -103,6 +108,7 @@ class DepthCheck:
             "chi2": self.chi2,
             "dof": self.dof,
             "p_value": self.p_value,
+            "p_pull": self.p_pull,
             "significance": SIGNIFICANCE,
         }
 
@@ -150,10 +156,11 @@ def depth_check(
     removed = np.linalg.solve(L, np.linalg.solve(L, covariance_pixels - covariance_depth).T)
     fraction, directions = np.linalg.eigh(0.5 * (removed + removed.T))
     tested = fraction > MIN_INFORMATION
+    pull = float(delta @ np.linalg.solve(covariance_pixels, delta))
+    p_pull = float(chi2.sf(pull, 6))
     if not tested.any():
-        statistic = float(delta @ np.linalg.solve(covariance_pixels, delta))
-        return DepthCheck(delta, statistic, 6, float(chi2.sf(statistic, 6)), False, *misfits)
+        return DepthCheck(delta, pull, 6, p_pull, p_pull, False, *misfits)
     along = directions[:, tested].T @ np.linalg.solve(L, delta)
     statistic = float(np.sum(along**2 / fraction[tested]))
     dof = int(tested.sum())
-    return DepthCheck(delta, statistic, dof, float(chi2.sf(statistic, dof)), True, *misfits)
+    return DepthCheck(delta, statistic, dof, float(chi2.sf(statistic, dof)), p_pull, True, *misfits)
