@@ -12,14 +12,15 @@ from sim.noise import waypoint_rng
 class SimulatedCell:
     """A SimCell behind the session interface. Planning moves the simulated arm through the
     waypoints and back without drawing noise, and each capture draws the noise of its waypoint
-    (sim.noise.waypoint_rng), so a session, resumed or not, draws the same noise as
-    `hec simulate` with the same seed."""
+    (sim.noise.waypoint_rng(noise_seed, waypoint index)), so a session, resumed or not, draws the
+    same noise as `hec simulate` with the same seed and noise seed. The cell (its model errors) is
+    the SimCell's own, drawn from its seed."""
 
     source = "sim"
 
-    def __init__(self, cell: SimCell, seed: int) -> None:
+    def __init__(self, cell: SimCell, noise_seed: int) -> None:
         self.cell = cell
-        self.seed = seed
+        self.noise_seed = noise_seed
         self._waypoint: int | None = None
         self.intrinsics = cell.intrinsics
         self.board = cell.board
@@ -48,7 +49,7 @@ class SimulatedCell:
     def capture(self) -> Capture:
         if self._waypoint is None:
             raise ValueError("capture before the first move: no waypoint to draw the noise of")
-        frame, truth = self.cell.capture(waypoint_rng(self.seed, self._waypoint))
+        frame, truth = self.cell.capture(waypoint_rng(self.noise_seed, self._waypoint))
         return Capture(frame, true_T_base_flange=truth.T_base_flange, true_joints=truth.joints)
 
     def close(self) -> None:

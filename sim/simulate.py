@@ -44,13 +44,13 @@ def scenario_waypoints(scenario: Scenario) -> list[Waypoint]:
     return make(scenario.board.transform(), scenario.mount.transform(), scenario.trajectory.distance_m)
 
 
-def simulation_metadata(scenario: Scenario, seed: int) -> dict:
+def simulation_metadata(scenario: Scenario, seed: int, noise_seed: int) -> dict:
     """dataset.json fields of a simulated dataset: the noise the estimators should assume
-    and what produced it."""
+    and what produced it (seed: the true cell's; noise_seed: each frame's noise)."""
     return {
         "depth_noise": depth_noise_model(scenario.noise).to_dict(),
         "robot_pose_noise": robot_pose_noise_model(scenario.noise).to_dict(),
-        "simulation": {"seed": seed, "scenario": scenario.to_dict()},
+        "simulation": {"seed": seed, "scenario": scenario.to_dict(), "noise_seed": noise_seed},
     }
 
 
@@ -126,9 +126,8 @@ def simulate(
                 raise SimulationError("no waypoint could be used; see the reasons above")
             _warn_small_markers(module_px)
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
-            extra = simulation_metadata(scenario, seed)
+            extra = simulation_metadata(scenario, seed, noise_seed)
             extra["simulation"] |= {
-                "noise_seed": noise_seed,
                 "waypoints": len(waypoints),
                 "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
             }

@@ -185,6 +185,7 @@ def test_calibrate_json_on_a_read_only_file_system_fails_before_the_work(
         (["board", "--dpi", "100000"], "argument --dpi: must be 72 to 2400 dots per inch, got '100000'"),
         (["simulate", "--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
         (["record", "--sim", "--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
+        (["run", "--sim", "--noise-seed", "x"], "argument --noise-seed: must be an integer >= 0, got 'x'"),
         (
             ["calibrate", "DS", "--robot-sigma-mm", "inf"],
             "argument --robot-sigma-mm: must be a number >= 0, got 'inf'",

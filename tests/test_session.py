@@ -4,6 +4,7 @@ against the loopback UR controller and the RealSense software device sharing one
 from __future__ import annotations
 
 import faulthandler
+import json
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -14,7 +15,9 @@ import numpy as np
 import pytest
 
 from estimator.geometry.transforms import pose_error, xyz_quat_from_transform
+from estimator.geometry.waypoints import write_waypoint_file
 from estimator.io.dataset import load_dataset
+from estimator.io.models import models_dir
 from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
 from experiments.cli import main
 from experiments.commands import build_parser
@@ -236,3 +239,52 @@ def test_record_sim_is_the_simulation_and_run_calibrates(tmp_path: Path, capsys)
     assert (out / record.CALIBRATION_FILE).is_file()
     plot = cv2.imread(str(out / PLOT_FILE))
     assert plot is not None and plot.shape[0] > 400
+
+
+def _realistic_views(folder: Path, views: int = 2) -> Path:
+    """The realistic cell (models/scenarios/realistic.toml: arm, lens and print errors drawn from the
+    seed) over the first views default waypoints, as a scenario file in folder."""
+    folder.mkdir(parents=True)
+    write_waypoint_file(folder / "waypoints.csv", scenario_waypoints(Scenario())[:views])
+    realistic = (models_dir() / "scenarios" / "realistic.toml").read_text()
+    trajectory = '\n[trajectory]\nkind = "file"\nfile = "waypoints.csv"\n'
+    (folder / "scenario.toml").write_text(realistic + trajectory)
+    return folder / "scenario.toml"
+
+
+def test_record_sim_noise_seed_draws_new_noise_in_the_same_cell(tmp_path: Path, capsys) -> None:
+    """--noise-seed keeps the cell of --seed (mount, board, true arm, lens, print: ground_truth.json)
+    and draws other noise in every frame; without it the noise is the seed's, as `hec simulate`'s."""
+    scenario = _realistic_views(tmp_path / "case")
+    simulated = simulate(load_scenario(scenario), tmp_path / "simulated", TEST_SEED, progress=False).out_dir
+    default, other = tmp_path / "default", tmp_path / "other"
+    argv = ["record", "--sim", "--scenario", str(scenario), "--seed", str(TEST_SEED), "--no-live", "--out"]
+    assert main([*argv, str(default)]) == 0
+    assert main([*argv, str(other), "--noise-seed", str(TEST_SEED + 1)]) == 0
+    truth = [json.loads((root / "ground_truth.json").read_text()) for root in (simulated, default, other)]
+    assert "model_errors" in truth[0] and truth[0] == truth[1] == truth[2]
+    reference, recorded, renoised = load_dataset(simulated), load_dataset(default), load_dataset(other)
+    assert recorded.metadata["simulation"]["noise_seed"] == TEST_SEED
+    assert renoised.metadata["simulation"]["noise_seed"] == TEST_SEED + 1
+    assert len(reference) == len(recorded) == len(renoised) == 2
+    for row, same, new in zip(reference.rows, recorded.rows, renoised.rows, strict=True):
+        for column in ("rgb", "depth"):
+            assert (default / same[column]).read_bytes() == (simulated / row[column]).read_bytes()
+            assert (other / new[column]).read_bytes() != (simulated / row[column]).read_bytes()
+        np.testing.assert_array_equal(same["T_base_flange"], row["T_base_flange"])
+        assert not np.allclose(new["T_base_flange"], row["T_base_flange"], rtol=0.0, atol=1e-9)
+    _check_resume_keeps_the_noise_seed(argv, default, other, capsys)
+
+
+def _check_resume_keeps_the_noise_seed(argv: list[str], default: Path, other: Path, capsys) -> None:
+    """A resume must draw the recording's noise: another noise seed is refused, and a recording of an
+    older hec (no simulation.noise_seed, its noise drawn from the seed) resumes with the seed's."""
+    capsys.readouterr()
+    assert main([*argv, str(other), "--resume"]) == 2
+    assert f"'simulation.noise_seed' was {TEST_SEED + 1} and is now {TEST_SEED}" in capsys.readouterr().err
+    meta = json.loads((default / "dataset.json").read_text())
+    del meta["simulation"]["noise_seed"]
+    (default / "dataset.json").write_text(json.dumps(meta))
+    assert main([*argv, str(default), "--resume"]) == 0
+    assert main([*argv, str(default), "--resume", "--noise-seed", str(TEST_SEED + 1)]) == 2
+    assert f"'simulation.noise_seed' was None and is now {TEST_SEED + 1}" in capsys.readouterr().err

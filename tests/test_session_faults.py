@@ -108,7 +108,8 @@ def test_resume_refuses_another_seed_or_mount_and_says_what_differs(tmp_path: Pa
     assert run_hec(env_args)[0] == 0
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     code, _, err = run_hec([*env_args, "--resume", "--seed", "4"])
-    assert code == 2 and "cannot resume, 'simulation.seed' was 3 and is now 4" in err
+    # The noise seed follows --seed and is named first (the fields are compared in sorted order).
+    assert code == 2 and "cannot resume, 'simulation.noise_seed' was 3 and is now 4" in err
     moved = _scenario(tmp_path / "moved", "[mount]\ntranslation_m = [0.0, 0.006, 0.050]\n")
     code, _, err = run_hec(_record(moved, out, "--no-live", "--resume"))
     assert code == 2 and "'simulation.scenario.mount.translation_m' was [0.0, 0.006, 0.04]" in err

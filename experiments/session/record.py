@@ -27,6 +27,7 @@ from estimator.geometry.waypoints import (
     waypoints_fingerprint,
 )
 from estimator.io.dataset import DatasetError, DatasetRecorder, GroundTruth
+from estimator.io.jsonfile import read_json_object
 from estimator.io.lock import FolderLockedError
 from estimator.solve.methods import DEFAULT_METHOD, METHODS
 from estimator.solve.verify import spread_views
@@ -73,7 +74,18 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
             help="waypoint CSV (required on the real cell; --sim: default the scenario's trajectory)",
         )
         p.add_argument("--scenario", type=Path, help="--sim: scenario TOML (default: the built-in one)")
-        p.add_argument("--seed", type=arguments.seed, help="--sim: noise seed (default: the scenario's)")
+        p.add_argument(
+            "--seed",
+            type=arguments.seed,
+            help="--sim: the seed of the cell's model errors and, unless --noise-seed, of the noise "
+            "(default: the scenario's)",
+        )
+        p.add_argument(
+            "--noise-seed",
+            type=arguments.seed,
+            metavar="N",
+            help="--sim: each frame's noise from N instead (the same cell; default: --seed)",
+        )
         p.add_argument("--out", required=True, type=Path, help="dataset folder to create (or --resume)")
         p.add_argument("--dry-run", action="store_true", help="print the plan and stop; nothing moves")
         p.add_argument("--yes", action="store_true", help="do not ask before the first motion")
@@ -108,16 +120,34 @@ def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], di
 
     scenario = load_scenario(args.scenario)
     seed = scenario.seed if args.seed is None else args.seed
+    noise_seed = seed if args.noise_seed is None else args.noise_seed
     waypoints = read_waypoint_file(args.waypoints) if args.waypoints else scenario_waypoints(scenario)
     cell = SimCell(scenario, np.random.default_rng(seed))
-    extra = simulation_metadata(scenario, seed)
+    extra = simulation_metadata(scenario, seed, noise_seed)
+    if args.resume:
+        extra = _as_older_recording(args.out / "dataset.json", extra)
     return (
-        SimulatedCell(cell, seed),
+        SimulatedCell(cell, noise_seed),
         waypoints,
         extra,
         cell.ground_truth(),
         lambda q: forward(cell.cell.kinematics, q),
     )
+
+
+def _as_older_recording(meta_path: Path, extra: dict) -> dict:
+    """extra without simulation.noise_seed when the recording being resumed has none (an older hec,
+    whose frames drew their noise from the seed) and it is the seed: that session goes on as it
+    was. Another noise seed stays, and the resume is refused for it."""
+    recorded = read_json_object(meta_path, DatasetError, "missing: nothing to resume here").get("simulation")
+    simulation = dict(extra["simulation"])
+    if (
+        isinstance(recorded, dict)
+        and "noise_seed" not in recorded
+        and simulation["noise_seed"] == simulation["seed"]
+    ):
+        del simulation["noise_seed"]
+    return extra | {"simulation": simulation}
 
 
 def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None]:
