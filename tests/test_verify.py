@@ -6,6 +6,7 @@ calibration (no covariance) and on a file of another format, naming it."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -140,3 +141,17 @@ def test_a_file_of_another_format_exits_2_naming_it(
     code, out, err = run_hec(["verify", str(path), str(five_views), "--quiet"])
     assert code == EXIT_UNTESTED and out == ""
     assert f"{path}: {words}" in err
+
+
+def test_a_calibration_that_left_the_depths_out_is_verified_without_them(calibrated) -> None:
+    _, flange, _, levels, rng = calibrated
+    views = synthetic_observations(
+        BOARD, INTRINSICS, calibrated[0], T_BASE_BOARD, spread_views(flange), SyntheticNoise(), rng
+    )
+    problem = build_problem(views, BOARD, INTRINSICS, SyntheticNoise().robot)
+    with_depth = verification_problem(problem, levels)
+    without = verification_problem(problem, replace(levels, depth_used=False))
+    assert all(m.depth_m is not None for f in with_depth.frames for m in f.markers)
+    assert all(
+        m.depth_m is None and m.whitening.shape[0] == m.pixel_rows for f in without.frames for m in f.markers
+    )

@@ -68,13 +68,16 @@ class LearnedNoiseLevels:
     """The noise levels a calibration learned (its JSON 'noise.learned'): pixel_scale and depth_scale
     multiply the detector's corner and the depth model's sigmas; the flange pose noise per base axis
     (metres) and per flange axis (radians). self_calibration: the corrected camera, board, depth and
-    arm parameters by name (estimator.solve.self_calibration), empty when none."""
+    arm parameters by name (estimator.solve.self_calibration), empty when none. depth_used: False
+    when the calibration left the depths out, for they disagreed with the pixels
+    (estimator.solve.depth_check; 'noise.depth_check.used')."""
 
     pixel_scale: float
     depth_scale: float
     robot_translation_sigma_m: float
     robot_rotation_sigma_rad: float
     self_calibration: dict[str, float]
+    depth_used: bool = True
 
 
 @dataclass(frozen=True)
@@ -128,19 +131,13 @@ def _noise(result: dict, path: Path) -> LearnedNoiseLevels | None:
             float(learned["robot_translation_sigma_m"]),
             float(learned["robot_rotation_sigma_rad"]),
             {str(name): float(v["value"]) for name, v in values.items()},
+            bool((noise.get("depth_check") or {}).get("used", True)),
         )
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise CalibrationFileError(f"{path}: field 'noise.learned' is malformed ({exc})") from None
     if not all(np.isfinite(x) and x > 0 for x in (levels.pixel_scale, levels.depth_scale)):
         raise CalibrationFileError(f"{path}: field 'noise.learned' must have positive scales")
     return levels
-
-
-def _depth_agreed(result: dict) -> bool:
-    """False when the calibration left the depths out because they disagreed with the pixels
-    (its 'noise.depth_check.used'; estimator.solve.depth_check)."""
-    check = (result.get("noise") or {}).get("depth_check") or {}
-    return bool(check.get("used", True))
 
 
 def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
@@ -177,7 +174,7 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
         covariance=covariance,
         noise=_noise(result, path),
         depth_scale=None if depth_scale is None else float(depth_scale),
-        use_depth=bool(result.get("use_depth", True)) and _depth_agreed(result),
+        use_depth=bool(result.get("use_depth", True)),
         pose_frame=str(result.get("pose_frame", "flange")),
         dataset=result.get("dataset"),
         data=result,

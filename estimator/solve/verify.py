@@ -29,6 +29,7 @@ from estimator.geometry.lie import pose_minus
 from estimator.io.calibration_file import LearnedNoiseLevels
 from estimator.solve.batch import BatchObjective, gauss_newton, state_covariance
 from estimator.solve.calibration import MethodOptions
+from estimator.solve.depth_check import pixels_only
 from estimator.solve.filters import initial_covariance
 from estimator.solve.initialise import board_pose_pnp, mean_pose
 from estimator.solve.measurement_model import HandEyeState
@@ -53,9 +54,12 @@ def spread_views(items: list[Item], count: int = VERIFY_VIEWS) -> list[Item]:
 
 def verification_problem(problem: CalibrationProblem, noise: LearnedNoiseLevels | None) -> CalibrationProblem:
     """The verification frames' problem at the calibration's learned noise levels, with its
-    self-calibrated parameters applied (the problem as it is when noise is None)."""
+    self-calibrated parameters applied and without the depths when it left them out (the problem as
+    it is when noise is None)."""
     if noise is None:
         return problem
+    if not noise.depth_used:
+        problem = pixels_only(problem)
     if noise.self_calibration:
         names = tuple(noise.self_calibration)
         problem = adjusted_problem(problem, np.array([noise.self_calibration[n] for n in names]), names)

@@ -94,6 +94,7 @@ def learned_levels(learned: LearnedNoise) -> LearnedNoiseLevels:
         robot.translation_sigma_m,
         robot.rotation_sigma_rad,
         theta,
+        learned.depth is None or learned.depth.used,
     )
 
 
