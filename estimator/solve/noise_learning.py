@@ -270,18 +270,18 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     P0 = initial_covariance(start, options)
     first = _vce(problem, options, start, P0, NoiseLevels(1.0, 1.0, robot), None, ())
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
-    final, kept, tried, theta_covariance, consider = first, (), (), None, None
+    final, kept, tried, uncertainty = first, (), (), None
     ratios_after, chi2_dof_after = None, None
     camera_misfit, arm_misfit = _misfits(problem, first, declared_ratios, robot)
     if camera_misfit:
         tried = available_groups(problem, arm_misfit=False)
-        final, kept, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
+        final, kept, uncertainty = _self_calibrate(problem, options, start, P0, first, tried)
         # The camera's errors (a depth bias above all) push the flange poses too: the arm misfits
         # only if its poses still do with the camera, board and depth calibrated.
         arm_misfit = arm_misfit and _arm_misfits_still(problem, final, declared, robot)
     if arm_misfit:
         tried = available_groups(problem, arm_misfit=True)
-        final, kept, theta_covariance, consider = _self_calibrate(problem, options, start, P0, first, tried)
+        final, kept, uncertainty = _self_calibrate(problem, options, start, P0, first, tried)
     if kept:
         ratios_after, chi2_dof_after = _declared_fit(final.levels, declared, robot, final.factors)
     names = group_names(problem, kept)
@@ -291,13 +291,10 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     objective = BatchObjective(scaled, start, P0, options.prior)
     params = final.params[: objective.size]
     frame_residuals = objective.frame_residuals(params)
-    _, J = weighted_jacobian(
-        _objective(scaled_problem(problem, final.levels), start, P0, options, names),
-        final.params,
-        options.robust,
-    )
-    to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
-    mount_covariance = to_local @ np.linalg.inv(J.T @ J)[:6, :6] @ to_local.T
+    if uncertainty is None:
+        mount_covariance = state_covariance(objective, params, options.robust)[:6, :6]
+    else:
+        mount_covariance = uncertainty.mount
     prior_distance = None
     if options.prior is not None:
         prior_distance = _prior_distance(scaled, start, P0, params, options)
@@ -313,14 +310,14 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         frame_residuals,
         prior_distance,
         theta=theta,
-        theta_covariance=theta_covariance,
+        theta_covariance=None if uncertainty is None else uncertainty.theta,
         theta_names=names,
         groups_tried=tried,
         groups_kept=kept,
-        consider_covariance=consider,
+        consider_covariance=None if uncertainty is None else uncertainty.consider,
         ratios_after=ratios_after,
         chi2_dof_after=chi2_dof_after,
-        mount_covariance=0.5 * (mount_covariance + mount_covariance.T),
+        mount_covariance=mount_covariance,
     )
 
 
@@ -361,10 +358,10 @@ def _self_calibrate(
     P0: np.ndarray,
     first: _Pass,
     groups: tuple[str, ...],
-) -> tuple[_Pass, tuple[str, ...], np.ndarray | None, np.ndarray | None]:
+) -> tuple[_Pass, tuple[str, ...], NuisanceUncertainty | None]:
     """Self-calibration of groups, then again without the groups droppable_groups finds. Returns the
-    final pass, the groups kept, theta's covariance and the consider covariance (the first pass
-    and no groups when every group is dropped)."""
+    final pass, the groups kept and the uncertainty at its optimum (the first pass, no groups and
+    None when every group is dropped)."""
     names = group_names(problem, groups)
     x0 = np.concatenate([first.params, np.zeros(len(names))])
     full = _vce(problem, options, start, P0, first.levels, x0, names)
@@ -373,16 +370,15 @@ def _self_calibrate(
     rows_of = {g: [index[n] for n in group_members(problem, g)] for g in groups}
     dropped = droppable_groups(rows_of, full.params[-len(names) :], uncertainty)
     if not dropped:
-        return full, groups, uncertainty.theta, uncertainty.consider
+        return full, groups, uncertainty
     kept = tuple(g for g in groups if g not in dropped)
     if not kept:
-        return first, (), None, None
+        return first, (), None
     theta = dict(zip(names, full.params[-len(names) :], strict=True))
     names = group_names(problem, kept)
     x0 = np.concatenate([first.params, [theta[n] for n in names]])
     final = _vce(problem, options, start, P0, full.levels, x0, names)
-    uncertainty = _nuisance_uncertainty(problem, final, names, start, P0, options)
-    return final, kept, uncertainty.theta, uncertainty.consider
+    return final, kept, _nuisance_uncertainty(problem, final, names, start, P0, options)
 
 
 def _nuisance_uncertainty(
