@@ -80,6 +80,12 @@ def pose_minus(T: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3] - T_ref[:3, 3], so3_log(T_ref[:3, :3].T @ T[:3, :3])])
 
 
+def delta_size(delta: np.ndarray) -> tuple[float, float]:
+    """The size of a perturbation (6,) (dt, dtheta): the length of dt in millimetres and the angle of
+    dtheta in degrees."""
+    return 1e3 * float(np.linalg.norm(delta[:3])), float(np.degrees(np.linalg.norm(delta[3:])))
+
+
 def pose_plus_jacobian(delta: np.ndarray) -> np.ndarray:
     """(6, 6) d(local perturbation at pose_plus(T, delta)) / d(delta): block diag(I, Jr(dtheta))."""
     J = np.eye(6)

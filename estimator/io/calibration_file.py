@@ -118,8 +118,9 @@ def _pick_result(data: dict, path: Path, method: str | None) -> dict:
     return context | results[names.index(method)]
 
 
-def _noise(result: dict, path: Path) -> LearnedNoiseLevels | None:
-    noise = result.get("noise")
+def learned_noise_levels(noise: dict | None, path: Path) -> LearnedNoiseLevels | None:
+    """The levels of a calibration's 'noise' object (estimator.solve.noise_learning.LearnedNoise's
+    to_dict), None without one; raises CalibrationFileError naming path when it is malformed."""
     if noise is None:
         return None
     try:
@@ -172,7 +173,7 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
         method=str(result.get("method", "?")),
         T_flange_cam=pose_field(result, "T_flange_cam", path, CalibrationFileError),
         covariance=covariance,
-        noise=_noise(result, path),
+        noise=learned_noise_levels(result.get("noise"), path),
         depth_scale=None if depth_scale is None else float(depth_scale),
         use_depth=bool(result.get("use_depth", True)),
         pose_frame=str(result.get("pose_frame", "flange")),

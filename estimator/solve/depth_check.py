@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import pose_minus
+from estimator.geometry.lie import delta_size, pose_minus
 from estimator.solve.noise_levels import NoiseLevels
 from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
 
@@ -72,11 +72,13 @@ class DepthCheck:
 
     @property
     def shift_mm(self) -> float:
-        return 1e3 * float(np.linalg.norm(self.delta[:3]))
+        """Length of the translation shift, mm."""
+        return delta_size(self.delta)[0]
 
     @property
     def shift_deg(self) -> float:
-        return float(np.degrees(np.linalg.norm(self.delta[3:])))
+        """Angle of the rotation shift, degrees."""
+        return delta_size(self.delta)[1]
 
     def describe(self) -> str:
         """One line for the report: whether the depths are used, and why."""

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.stats import chi2
 from threadpoolctl import threadpool_limits
 
-from estimator.geometry.lie import pose_minus
+from estimator.geometry.lie import delta_size, pose_minus
 from estimator.io.calibration_file import LearnedNoiseLevels
 from estimator.solve.batch import BatchObjective, gauss_newton, state_covariance
 from estimator.solve.calibration import MethodOptions
@@ -89,12 +89,12 @@ class Verification:
     @property
     def shift_mm(self) -> float:
         """Length of the translation shift, mm."""
-        return 1e3 * float(np.linalg.norm(self.delta[:3]))
+        return delta_size(self.delta)[0]
 
     @property
     def shift_deg(self) -> float:
         """Angle of the rotation shift, degrees."""
-        return float(np.degrees(np.linalg.norm(self.delta[3:])))
+        return delta_size(self.delta)[1]
 
     @property
     def moved(self) -> bool | None:

@@ -45,7 +45,7 @@ from tqdm import tqdm  # noqa: E402
 from estimator.geometry.lie import pose_minus, pose_plus  # noqa: E402
 from estimator.geometry.transforms import pose_error  # noqa: E402
 from estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
-from estimator.io.calibration_file import LearnedNoiseLevels  # noqa: E402
+from estimator.io.calibration_file import LearnedNoiseLevels, learned_noise_levels  # noqa: E402
 from estimator.io.dataset import Dataset  # noqa: E402
 from estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
 from estimator.solve.calibration import Calibration, MethodOptions  # noqa: E402
@@ -81,21 +81,9 @@ DEFAULT_SEEDS = {"measurement": 100, "render": 30}
 
 
 def learned_levels(learned: LearnedNoise) -> LearnedNoiseLevels:
-    """What a calibration file records of the learned noise (estimator.io.calibration_file)."""
-    theta = (
-        {}
-        if learned.theta is None
-        else dict(zip(learned.theta_names, map(float, learned.theta), strict=True))
-    )
-    robot = learned.learned.robot
-    return LearnedNoiseLevels(
-        learned.learned.pixel_scale,
-        learned.learned.depth_scale,
-        robot.translation_sigma_m,
-        robot.rotation_sigma_rad,
-        theta,
-        learned.depth is None or learned.depth.used,
-    )
+    """What a calibration file records of the learned noise, read as `hec verify` reads it
+    (estimator.io.calibration_file)."""
+    return learned_noise_levels(learned.to_dict(), Path("<learned noise>"))
 
 
 def random_shift(rng: np.random.Generator, shift_mm: float, shift_deg: float) -> np.ndarray:
