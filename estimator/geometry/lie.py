@@ -86,6 +86,14 @@ def delta_size(delta: np.ndarray) -> tuple[float, float]:
     return 1e3 * float(np.linalg.norm(delta[:3])), float(np.degrees(np.linalg.norm(delta[3:])))
 
 
+def pose_nees(T_estimate: np.ndarray, T_true: np.ndarray, covariance: np.ndarray) -> float:
+    """Squared Mahalanobis distance of the (4, 4) estimate from the truth, pose_minus(T_estimate,
+    T_true), under the estimate's (6, 6) covariance: about 6 on average when it is honest. Raises
+    numpy.linalg.LinAlgError for a singular covariance."""
+    delta = pose_minus(T_estimate, T_true)
+    return float(delta @ np.linalg.solve(covariance, delta))
+
+
 def pose_plus_jacobian(delta: np.ndarray) -> np.ndarray:
     """(6, 6) d(local perturbation at pose_plus(T, delta)) / d(delta): block diag(I, Jr(dtheta))."""
     J = np.eye(6)

@@ -53,7 +53,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from estimator.geometry.lie import pose_minus  # noqa: E402
+from estimator.geometry.lie import pose_nees  # noqa: E402
 from estimator.geometry.transforms import pose_error  # noqa: E402
 from estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
 from estimator.observe.observations import camera_points  # noqa: E402
@@ -284,9 +284,8 @@ def run_trial(case_index: int, seed: int, trial: int) -> dict:
         error_m, error_rad = pose_error(result.T_flange_cam, X)
         nees = None
         if result.covariance is not None:
-            delta = pose_minus(result.T_flange_cam, X)
             try:
-                nees = float(delta @ np.linalg.solve(result.covariance, delta))
+                nees = pose_nees(result.T_flange_cam, X, result.covariance)
             except np.linalg.LinAlgError:
                 nees = math.inf
         out["methods"][method] = {

@@ -42,7 +42,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from estimator.geometry.lie import pose_minus, pose_plus  # noqa: E402
+from estimator.geometry.lie import pose_nees, pose_plus  # noqa: E402
 from estimator.geometry.transforms import pose_error  # noqa: E402
 from estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
 from estimator.io.calibration_file import LearnedNoiseLevels, learned_noise_levels  # noqa: E402
@@ -105,13 +105,6 @@ def _cases(
     ]
 
 
-def _nees(T_estimate: np.ndarray, T_true: np.ndarray, covariance: np.ndarray) -> float:
-    """Squared Mahalanobis distance of the (4, 4) estimate from the truth under its (6, 6)
-    covariance (lie convention): about 6 on average when the covariance is honest."""
-    delta = pose_minus(T_estimate, T_true)
-    return float(delta @ np.linalg.solve(covariance, delta))
-
-
 def _calibrate(problem: CalibrationProblem, observations: list) -> tuple[Calibration, LearnedNoiseLevels]:
     """The default method with learned noise, as hec calibrate runs it: the calibration and the
     levels its file records."""
@@ -123,7 +116,7 @@ def _calibrate(problem: CalibrationProblem, observations: list) -> tuple[Calibra
 def _calibration_row(cal: Calibration, T_flange_cam_true: np.ndarray) -> dict:
     """The calibration against the truth: error (mm, deg) and NEES."""
     error_m, error_rad = pose_error(cal.T_flange_cam, T_flange_cam_true)
-    nees = _nees(cal.T_flange_cam, T_flange_cam_true, cal.covariance)
+    nees = pose_nees(cal.T_flange_cam, T_flange_cam_true, cal.covariance)
     return {"error_mm": 1e3 * error_m, "error_deg": float(np.degrees(error_rad)), "nees": nees}
 
 
@@ -136,7 +129,7 @@ def _case_row(v: Verification, T_flange_cam_true: np.ndarray) -> dict:
         "shift_mm": v.shift_mm,
         "sigma": v.test_sigma,
         "fit": v.fit_chi2_dof,
-        "nees_verify": _nees(v.T_flange_cam_verify, T_flange_cam_true, v.covariance_verify),
+        "nees_verify": pose_nees(v.T_flange_cam_verify, T_flange_cam_true, v.covariance_verify),
     }
 
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from estimator.geometry.camera import project_points
-from estimator.geometry.lie import pose_minus
+from estimator.geometry.lie import pose_nees
 from estimator.geometry.transforms import invert, pose_error, rpy_from_transform, transform_points
 from estimator.geometry.waypoints import (
     Waypoint,
@@ -334,9 +334,8 @@ def run_trial(task: TrialTask) -> list[dict]:
         error_m, error_rad = pose_error(result.T_flange_cam, X)
         nees = math.nan
         if result.covariance is not None:
-            delta = pose_minus(result.T_flange_cam, X)
             with contextlib.suppress(np.linalg.LinAlgError):
-                nees = float(delta @ np.linalg.solve(result.covariance, delta))
+                nees = pose_nees(result.T_flange_cam, X, result.covariance)
         rows.append(
             {
                 **base,
