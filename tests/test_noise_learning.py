@@ -22,7 +22,12 @@ from estimator.solve.methods import run_method
 from estimator.solve.noise_learning import learn_noise
 from estimator.solve.noise_levels import NoiseLevels, scaled_problem
 from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem
-from estimator.solve.self_calibration import CAMERA_NUISANCE, adjusted_problem
+from estimator.solve.self_calibration import (
+    CAMERA_NUISANCE,
+    NuisanceUncertainty,
+    adjusted_problem,
+    droppable_groups,
+)
 from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 
 DECLARED = SyntheticNoise()
@@ -392,3 +397,24 @@ def test_a_marker_printed_off_its_place_is_found_and_named() -> None:
     delta = pose_minus(result.T_flange_cam, X)
     assert pose_error(result.T_flange_cam, X)[0] < 5e-4, pose_error(result.T_flange_cam, X)
     assert float(delta @ np.linalg.solve(result.covariance, delta)) < 20.0
+
+
+def _uncertainty(cross: np.ndarray) -> NuisanceUncertainty:
+    """Nuisance parameters of unit covariance; the mount's covariance with them fixed the identity,
+    plus what they add through cross (6, p) when estimated."""
+    added = cross @ cross.T
+    return NuisanceUncertainty(np.eye(cross.shape[1]), np.eye(6) + added, cross, added)
+
+
+def test_a_significant_group_the_mount_does_not_see_is_fixed_and_one_that_moves_it_kept() -> None:
+    """Group "layout" (two parameters): the mount sees only the second (its axis 0, 2 sigmas per
+    unit). Group "scale" moves the mount's axis 1 as much. A layout 10 sigma off in its first
+    parameter (chi2 p ~ 1e-22) does not move the mount when fixed, and fixing it saves variance:
+    fixed. Either group moving the mount by 10 or 20 sigmas when fixed is kept."""
+    cross = np.zeros((6, 3))
+    cross[0, 1], cross[1, 2] = 2.0, 2.0
+    rows_of = {"layout": [0, 1], "scale": [2]}
+    uncertainty = _uncertainty(cross)
+    assert sorted(droppable_groups(rows_of, np.array([10.0, 0.0, 0.0]), uncertainty)) == ["layout", "scale"]
+    assert droppable_groups(rows_of, np.array([10.0, 0.0, 10.0]), uncertainty) == ["layout"]
+    assert droppable_groups(rows_of, np.array([10.0, 5.0, 0.0]), uncertainty) == ["scale"]
