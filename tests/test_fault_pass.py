@@ -148,8 +148,16 @@ def test_a_signal_during_detect_is_a_message_and_writes_no_cache(
 
 
 def test_ctrl_c_while_a_board_is_drawn_writes_nothing(tmp_path: Path) -> None:
-    process = _hec_process("board", "--out", str(tmp_path / "b.png"), "--dpi", "2400")
-    time.sleep(6)  # interpreter start and imports (1.5-3 s), then drawing the sheet (tens of seconds)
+    """The signal lands once the board module has loaded, the last import before drawing (tens of
+    seconds at 2400 dpi): a fixed wait had sometimes landed inside pyrealsense2's import on a busy
+    machine, which turns it into an ImportError."""
+    process = _hec_process(
+        "board", "--out", str(tmp_path / "b.png"), "--dpi", "2400", env={"PYTHONPROFILEIMPORTTIME": "1"}
+    )
+    for line in process.stderr:
+        if line.split("|")[-1].strip() == "experiments.printable":
+            break
+    time.sleep(0.5)
     assert process.poll() is None, process.communicate()
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
