@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import CalibrationProblem
+from estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 # 1-sigma above which a direction is reported as poorly determined / not observable.
 POOR_SIGMA_MM, POOR_SIGMA_DEG = 1.0, 0.1
@@ -50,18 +50,24 @@ class Observability:
         }
 
 
+def frame_information(
+    problem: CalibrationProblem, state: HandEyeState, frame: FrameMeasurements
+) -> np.ndarray:
+    """(dim, dim) Fisher information of the state perturbation from one frame, its flange pose
+    error marginalised."""
+    pred = predict_frame(problem, state, frame)
+    Js = pred.J_state
+    if problem.robot_noise.is_zero:
+        return Js.T @ Js
+    S = np.eye(len(Js)) + pred.J_flange @ problem.robot_noise.covariance() @ pred.J_flange.T
+    return Js.T @ np.linalg.solve(S, Js)
+
+
 def state_information(problem: CalibrationProblem, state: HandEyeState) -> np.ndarray:
     """(dim, dim) Fisher information of the state perturbation, flange pose errors marginalised."""
     info = np.zeros((state.dim, state.dim))
-    robot_cov = problem.robot_noise.covariance()
     for frame in problem.frames:
-        pred = predict_frame(problem, state, frame)
-        Js = pred.J_state
-        if problem.robot_noise.is_zero:
-            info += Js.T @ Js
-        else:
-            S = np.eye(len(Js)) + pred.J_flange @ robot_cov @ pred.J_flange.T
-            info += Js.T @ np.linalg.solve(S, Js)
+        info += frame_information(problem, state, frame)
     return info
 
 

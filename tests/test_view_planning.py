@@ -1,0 +1,125 @@
+"""View planning on the default simulated cell's geometry (measurement-level information, no
+renders): candidates, the information each adds, and the greedy choice against the default list."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimator.geometry.kinematics import UR5, forward
+from estimator.geometry.transforms import make_transform
+from estimator.geometry.waypoints import Waypoint, rotation_rich_waypoints
+from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from estimator.solve.measurement_model import HandEyeState
+from estimator.solve.observability import frame_information, state_information
+from estimator.solve.problem import build_problem
+from estimator.solve.view_planning import (
+    CRITERIA,
+    candidate_views,
+    eliminate_board,
+    plan_views,
+    predicted_sigmas,
+    reachable,
+    view_informations,
+)
+from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
+
+NOISE = SyntheticNoise()
+DISTANCE = SCENARIO.trajectory.distance_m
+
+
+def _candidates(seed: int, count: int = 300) -> tuple[np.ndarray, list[Waypoint], list[int], np.ndarray]:
+    rng = np.random.default_rng(seed)
+    X = random_mount(rng)
+    candidates = candidate_views(T_BASE_BOARD, X, DISTANCE, count, rng)
+    usable, informations = view_informations(candidates, BOARD, INTRINSICS, X, T_BASE_BOARD, NOISE)
+    return X, candidates, usable, informations
+
+
+def test_frame_informations_sum_to_the_state_information() -> None:
+    X = random_mount(np.random.default_rng(5))
+    flanges = [w.T_base_flange for w in rotation_rich_waypoints(T_BASE_BOARD, X, DISTANCE)]
+    observations = synthetic_observations(
+        BOARD, INTRINSICS, X, T_BASE_BOARD, flanges, NOISE, None, exact=True
+    )
+    problem = build_problem(observations, BOARD, INTRINSICS, NOISE.robot)
+    state = HandEyeState(X, T_base_board=T_BASE_BOARD)
+    total = sum(frame_information(problem, state, f) for f in problem.frames)
+    np.testing.assert_allclose(total, state_information(problem, state), rtol=1e-12, atol=1e-9)
+
+
+def test_candidates_keep_only_views_with_every_marker_in_the_image() -> None:
+    X, candidates, usable, informations = _candidates(1, 200)
+    assert 0.5 * len(candidates) < len(usable) < len(candidates)  # rolls and tilts push some out
+    assert informations.shape == (len(usable), 12, 12)
+    flanges = [candidates[i].T_base_flange for i in usable]
+    observations = synthetic_observations(
+        BOARD, INTRINSICS, X, T_BASE_BOARD, flanges, NOISE, None, exact=True
+    )
+    assert all(len(o.markers) == len(BOARD.marker_ids) for o in observations)
+    dropped = [candidates[i].T_base_flange for i in range(len(candidates)) if i not in set(usable)]
+    observations = synthetic_observations(
+        BOARD, INTRINSICS, X, T_BASE_BOARD, dropped, NOISE, None, exact=True, margin_px=20.0
+    )
+    assert all(len(o.markers) < len(BOARD.marker_ids) for o in observations)
+
+
+def _worst_sigma(state_information: np.ndarray) -> float:
+    """The bound's worst direction in units of 0.15 mm and 0.015 deg (plan_views' default)."""
+    units = np.r_[np.full(3, 0.15e-3), np.full(3, np.radians(0.015))]
+    mount = eliminate_board(state_information) * units[:, None] * units[None, :]
+    return float(1.0 / np.sqrt(np.linalg.eigvalsh(mount)[0]))
+
+
+@pytest.mark.parametrize("criterion", CRITERIA)
+@pytest.mark.parametrize("seed", [1, 2])
+def test_planned_views_reach_the_default_lists_bound_with_at_most_half_its_views(
+    criterion: str, seed: int
+) -> None:
+    """What the default 17 views reach at the end, at most 8 planned views reach: d-optimal both
+    RSS 1-sigmas (translation and rotation), worst-direction the bound's worst direction. Each
+    added view lowers the prediction (information only adds); no candidate is chosen twice."""
+    X, _, _, informations = _candidates(seed)
+    default = rotation_rich_waypoints(T_BASE_BOARD, X, DISTANCE)
+    usable, default_informations = view_informations(default, BOARD, INTRINSICS, X, T_BASE_BOARD, NOISE)
+    assert len(usable) == len(default)
+    final_mm, final_deg = predicted_sigmas(default_informations.sum(axis=0))
+    final_worst = _worst_sigma(default_informations.sum(axis=0))
+    steps = plan_views(informations, 17, criterion)
+    totals = np.cumsum(informations[[s.candidate for s in steps]], axis=0)
+    if criterion == "d-optimal":
+        reached = [s.sigma_translation_mm <= final_mm and s.sigma_rotation_deg <= final_deg for s in steps]
+    else:
+        reached = [k >= 2 and _worst_sigma(total) <= final_worst for k, total in enumerate(totals)]
+    assert any(reached) and reached.index(True) + 1 <= 8, (reached, final_mm, final_deg, final_worst)
+    sigmas = np.array([(s.sigma_translation_mm, s.sigma_rotation_deg) for s in steps[3:]])
+    assert np.all(np.diff(sigmas, axis=0) <= 1e-12)
+    assert len({s.candidate for s in steps}) == len(steps)
+
+
+def test_planning_stops_at_the_target() -> None:
+    _, _, _, informations = _candidates(3)
+    steps = plan_views(informations, 40, "d-optimal", target_sigma=(0.3, 0.05))
+    last = steps[-1]
+    assert last.sigma_translation_mm <= 0.3 and last.sigma_rotation_deg <= 0.05
+    before = steps[-2]
+    assert before.sigma_translation_mm > 0.3 or before.sigma_rotation_deg > 0.05
+    assert len(steps) < 40
+
+
+def test_an_unknown_criterion_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown criterion 'a-optimal'"):
+        plan_views(np.zeros((3, 12, 12)), 3, "a-optimal")
+
+
+def test_reachability_uses_the_arms_kinematics_and_the_workspace_box() -> None:
+    X = random_mount(np.random.default_rng(4))
+    near = rotation_rich_waypoints(T_BASE_BOARD, X, DISTANCE)[0]
+    seed = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
+    joints = reachable(near, UR5, seed)
+    assert joints is not None
+    np.testing.assert_allclose(forward(UR5, joints), near.T_base_flange, atol=1e-7)
+    far = Waypoint(0, "3 m away", T_base_flange=make_transform(np.eye(3), np.array([3.0, 0.0, 0.0])))
+    assert reachable(far, UR5, seed) is None
+    p = near.T_base_flange[:3, 3]
+    assert reachable(near, UR5, seed, (p + 0.01, p + 1.0)) is None
