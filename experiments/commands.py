@@ -14,6 +14,7 @@ from estimator.solve.problem import CalibrationInputError
 from estimator.targets.board import BoardDefinitionError
 from experiments import arguments
 from experiments import export as export_command
+from experiments import plan as plan_command
 from experiments import verify as verify_command
 from experiments.regress import command as regress
 from experiments.session import record, teach
@@ -153,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_calibrate(sub)
     _add_board(sub)
     export_command.add_parser(sub)
+    plan_command.add_parser(sub)
     verify_command.add_parser(sub)
     sweep.add_parser(sub)
     report.add_parser(sub)
@@ -183,8 +185,10 @@ def run(args: argparse.Namespace) -> int:
             from experiments.calibrate.command import run as run_calibrate
 
             return run_calibrate(args)
-        if args.command in ("export", "verify"):
-            return {"export": export_command, "verify": verify_command}[args.command].run(args)
+        if args.command in ("export", "verify", "plan"):
+            return {"export": export_command, "verify": verify_command, "plan": plan_command}[
+                args.command
+            ].run(args)
         if args.command in ("record", "run"):
             return record.run(args)
         if args.command == "teach":

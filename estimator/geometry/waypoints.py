@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -194,14 +195,20 @@ def read_waypoint_file(path: str | Path) -> list[Waypoint]:
     return waypoints
 
 
+def waypoint_csv(waypoints: list[Waypoint]) -> str:
+    """Flange-pose waypoints as the CSV text read_waypoint_file reads."""
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow((*POSE_COLUMNS, "label"))
+    for wp in waypoints:
+        t, q = xyz_quat_from_transform(wp.T_base_flange)
+        writer.writerow([repr(float(v)) for v in (*t, *q)] + [wp.label])
+    return text.getvalue()
+
+
 def write_waypoint_file(path: str | Path, waypoints: list[Waypoint]) -> None:
     """Write flange-pose waypoints in the CSV format read_waypoint_file reads."""
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow((*POSE_COLUMNS, "label"))
-        for wp in waypoints:
-            t, q = xyz_quat_from_transform(wp.T_base_flange)
-            writer.writerow([repr(float(v)) for v in (*t, *q)] + [wp.label])
+    Path(path).write_text(waypoint_csv(waypoints), newline="")
 
 
 def waypoints_fingerprint(waypoints: list[Waypoint]) -> dict:

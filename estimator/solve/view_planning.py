@@ -20,7 +20,7 @@ state coordinate) keeps both criteria finite; it is left out of the predicted 1-
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -174,11 +174,14 @@ def plan_views(
     max_views: int,
     criterion: str = "d-optimal",
     target_sigma: tuple[float, float] | None = None,
+    accept: Callable[[int], bool] | None = None,
 ) -> list[PlanStep]:
     """Candidates chosen greedily from (n, 12, 12) informations (view_informations), each at most
     once, up to max_views or until the predicted RSS 1-sigmas reach target_sigma (mm, deg).
     The worst-direction criterion weighs translation and rotation by target_sigma (default
-    0.15 mm and 0.015 deg)."""
+    0.15 mm and 0.015 deg). accept: asked of the best candidate before it is taken (a costly
+    check, such as inverse kinematics, run only on the candidates that would be chosen); a
+    refused one is never offered again."""
     if criterion not in CRITERIA:
         raise ValueError(f"unknown criterion {criterion!r}: one of {', '.join(CRITERIA)}")
     target_mm, target_deg = target_sigma if target_sigma is not None else (0.15, 0.015)
@@ -188,11 +191,13 @@ def plan_views(
     weak = _weak_prior(12)
     free = np.ones(n, bool)
     steps: list[PlanStep] = []
-    while len(steps) < min(max_views, n):
+    while len(steps) < max_views and free.any():
         scores = np.full(n, -np.inf)
         scores[free] = _scores(eliminate_board(total + weak + informations[free]), criterion, units)
         best = int(np.argmax(scores))
         free[best] = False
+        if accept is not None and not accept(best):
+            continue
         total = total + informations[best]
         steps.append(PlanStep(best, *predicted_sigmas(total)))
         if target_sigma is not None and steps[-1].sigma_translation_mm <= target_mm:
