@@ -410,11 +410,14 @@ def test_a_significant_group_the_mount_does_not_see_is_fixed_and_one_that_moves_
     """Group "layout" (two parameters): the mount sees only the second (its axis 0, 2 sigmas per
     unit). Group "scale" moves the mount's axis 1 as much. A layout 10 sigma off in its first
     parameter (chi2 p ~ 1e-22) does not move the mount when fixed, and fixing it saves variance:
-    fixed. Either group moving the mount by 10 or 20 sigmas when fixed is kept."""
+    fixed, while that is below its noteworthy size, kept when above. Either group moving the mount
+    by 10 or 20 sigmas when fixed is kept."""
     cross = np.zeros((6, 3))
     cross[0, 1], cross[1, 2] = 2.0, 2.0
     rows_of = {"layout": [0, 1], "scale": [2]}
-    uncertainty = _uncertainty(cross)
-    assert sorted(droppable_groups(rows_of, np.array([10.0, 0.0, 0.0]), uncertainty)) == ["layout", "scale"]
-    assert droppable_groups(rows_of, np.array([10.0, 0.0, 10.0]), uncertainty) == ["layout"]
-    assert droppable_groups(rows_of, np.array([10.0, 5.0, 0.0]), uncertainty) == ["scale"]
+    uncertainty, immaterial = _uncertainty(cross), np.full(3, 20.0)
+    fixed = droppable_groups(rows_of, np.array([10.0, 0.0, 0.0]), uncertainty, immaterial)
+    assert sorted(fixed) == ["layout", "scale"]
+    assert droppable_groups(rows_of, np.array([10.0, 0.0, 0.0]), uncertainty, np.full(3, 5.0)) == ["scale"]
+    assert droppable_groups(rows_of, np.array([10.0, 0.0, 10.0]), uncertainty, immaterial) == ["layout"]
+    assert droppable_groups(rows_of, np.array([10.0, 5.0, 0.0]), uncertainty, immaterial) == ["scale"]

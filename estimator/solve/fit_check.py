@@ -26,7 +26,13 @@ from estimator.geometry.lie import pose_minus
 from estimator.solve.measurement_model import predict_frame
 from estimator.solve.noise_learning import LearnedNoise
 from estimator.solve.problem import CalibrationProblem
-from estimator.solve.self_calibration import KINEMATIC_NUISANCE, PRIOR_SIGMA, adjusted_problem
+from estimator.solve.self_calibration import (
+    KINEMATIC_NUISANCE,
+    NOTEWORTHY,
+    NOTEWORTHY_MARKER_SHIFT_M,
+    PRIOR_SIGMA,
+    adjusted_problem,
+)
 
 # A group fits badly when its chi-square per degree of freedom at the declared noise exceeds this
 # (its learned sigma is then more than 1.5x the declared one).
@@ -43,24 +49,6 @@ SCALE_UNRESOLVED = 0.25
 # A self-calibrated correction is reported when it is more than SIGNIFICANT sigmas from the declared
 # model and larger than its NOTEWORTHY size (below that it changes the mount by well under 0.1 mm).
 SIGNIFICANT = 3.0
-NOTEWORTHY = {
-    "fx_px": 1.0,
-    "fy_px": 1.0,
-    "cx_px": 1.0,
-    "cy_px": 1.0,
-    "k1": 0.01,
-    "k2": 0.01,
-    "board_scale_x": 0.001,
-    "board_scale_y": 0.001,
-    "depth_scale": 0.001,
-    "depth_offset_m": 0.0005,
-    "board_bend_x_m": 0.0003,
-    "board_bend_y_m": 0.0003,
-    "depth_tilt_x": 0.0005,
-    "depth_tilt_y": 0.0005,
-}
-# A marker's self-calibrated shift is reported from this size.
-NOTEWORTHY_MARKER_SHIFT_M = 0.00005
 # The arm's corrected kinematics are reported when they move the flange poses by this much (RMS).
 NOTEWORTHY_FLANGE_MOVE_M = 0.0002
 NOTEWORTHY_FLANGE_TURN_RAD = float(np.radians(0.01))

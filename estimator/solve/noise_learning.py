@@ -52,6 +52,7 @@ from estimator.solve.self_calibration import (
     droppable_groups,
     group_members,
     group_names,
+    noteworthy_sizes,
 )
 
 GROUPS = ("pixels", "depth", "robot_translation", "robot_rotation")
@@ -368,7 +369,7 @@ def _self_calibrate(
     uncertainty = _nuisance_uncertainty(problem, full, names, start, P0, options)
     index = {n: i for i, n in enumerate(names)}
     rows_of = {g: [index[n] for n in group_members(problem, g)] for g in groups}
-    dropped = droppable_groups(rows_of, full.params[-len(names) :], uncertainty)
+    dropped = droppable_groups(rows_of, full.params[-len(names) :], uncertainty, noteworthy_sizes(names))
     if not dropped:
         return full, groups, uncertainty
     kept = tuple(g for g in groups if g not in dropped)

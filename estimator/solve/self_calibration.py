@@ -115,11 +115,33 @@ GROUP_SIGNIFICANCE = 1e-3
 # (Mahalanobis): 10 for a print scale the views cannot tell from the depth's, 2.6 for a depth bias
 # at one distance (p = 0.23 alone); the arm's kinematics on an exact arm moved it 0.5-1.2.
 DROP_SHIFT = 2.0
-# Groups are fixed too, significant or not, where that lowers the mount's expected squared error
-# (in its sigmas with them fixed) and moves it by less than this many sigmas: a rendered board's
-# texture makes its marker layout and scale significant at 10 um, and keeping them cost the mount
-# 1.3x (0.161 against 0.139 mm with a depth bias, 0.218 against 0.134 mm with a 2 % print). The
-# arm's kinematics on the realistic cell move it by 6-40 sigmas: estimated, they stay.
+# A correction is noteworthy from this size (below it changes the mount by well under 0.1 mm): the
+# fit check reports only those, and ...
+NOTEWORTHY = {
+    "fx_px": 1.0,
+    "fy_px": 1.0,
+    "cx_px": 1.0,
+    "cy_px": 1.0,
+    "k1": 0.01,
+    "k2": 0.01,
+    "board_scale_x": 0.001,
+    "board_scale_y": 0.001,
+    "depth_scale": 0.001,
+    "depth_offset_m": 0.0005,
+    "board_bend_x_m": 0.0003,
+    "board_bend_y_m": 0.0003,
+    "depth_tilt_x": 0.0005,
+    "depth_tilt_y": 0.0005,
+}
+# A marker's self-calibrated shift is reported from this size.
+NOTEWORTHY_MARKER_SHIFT_M = 0.00005
+# ... groups whose corrections are all below it are fixed too, significant or not, where that
+# lowers the mount's expected squared error (in its sigmas with them fixed) and moves it by less
+# than MSE_SHIFT sigmas: a rendered board's texture makes its marker layout and aspect significant
+# at 10 um and 0.03 %, and estimating them cost the mount 1.2x with a depth bias (0.161 against
+# 0.132 mm) and 1.4x with a 2 % print (0.218 against 0.153 mm). A 1 % print scale is noteworthy:
+# fixed, the focal lengths took it and the warning named them. The arm's kinematics have no such
+# size here: estimated, they stay (fixed, they moved the realistic cell's mount by 6-40 sigmas).
 MSE_SHIFT = 4.0
 # Finite-difference step of the kinematic Jacobian (radians or metres).
 _KINEMATIC_STEP = 1e-7
@@ -246,8 +268,16 @@ class NuisanceUncertainty:
     consider: np.ndarray
 
 
+def noteworthy_sizes(names: Sequence[str]) -> np.ndarray:
+    """(len(names),) the NOTEWORTHY size of each theta name (the marker shifts':
+    NOTEWORTHY_MARKER_SHIFT_M; 0 for the kinematics, which have none)."""
+    return np.array(
+        [NOTEWORTHY.get(n, NOTEWORTHY_MARKER_SHIFT_M if n.startswith("marker") else 0.0) for n in names]
+    )
+
+
 def droppable_groups(
-    rows_of: dict[str, list[int]], theta: np.ndarray, uncertainty: NuisanceUncertainty
+    rows_of: dict[str, list[int]], theta: np.ndarray, uncertainty: NuisanceUncertainty, noteworthy: np.ndarray
 ) -> list[str]:
     """The groups to fix at the declared model, added least significant first. A group joins when,
     with those before it, either
@@ -256,8 +286,9 @@ def droppable_groups(
       distortion) and fixing them moves the mount by less than DROP_SHIFT sigmas of its covariance
       with them fixed (a depth bias the print scale could absorb is insignificant alone, yet fixing
       it moves the mount, and its covariance would no longer say so); or
-    - fixing them lowers the mount's expected squared error and moves it by less than MSE_SHIFT
-      sigmas. The move s estimates the bias b that fixing makes, with the covariance K that
+    - every correction in the group is below its noteworthy size (NOTEWORTHY; noteworthy: (p,) per
+      theta row) and fixing them lowers the mount's expected squared error and moves it by less
+      than MSE_SHIFT sigmas. The move s estimates the bias b that fixing makes, with the covariance K that
       estimating them adds to the mount's: E[s s^T] = b b^T + K, so fixing trades b b^T ~ s s^T - K
       for K, and gains where s^T F^-1 s < 2 tr(F^-1 K) (F: the mount's covariance with them fixed).
     rows_of: each group's rows in theta."""
@@ -281,8 +312,9 @@ def droppable_groups(
             and chi2.sf(statistic(rows), len(rows)) >= GROUP_SIGNIFICANCE
             and moved <= DROP_SHIFT**2
         )
+        immaterial = bool(np.all(np.abs(theta[rows_of[g]]) < noteworthy[rows_of[g]]))
         lower_error = moved < min(2.0 * float(np.trace(np.linalg.solve(fixed, added))), MSE_SHIFT**2)
-        if insignificant or lower_error:
+        if insignificant or (immaterial and lower_error):
             dropped.append(g)
     return dropped
 
