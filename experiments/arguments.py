@@ -1,9 +1,11 @@
-"""Command-line value types whose errors name the option (argparse adds 'argument --NAME:')."""
+"""Command-line value types whose errors name the option (argparse adds 'argument --NAME:'), and options
+shared by commands."""
 
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 DPI_RANGE = (72.0, 2400.0)
 
@@ -45,3 +47,12 @@ def dpi(text: str) -> float:
     if not lo <= value <= hi:
         raise argparse.ArgumentTypeError(f"must be {lo:g} to {hi:g} dots per inch, got {text!r}")
     return value
+
+
+def add_scenario(parser: argparse.ArgumentParser) -> None:
+    """--scenario: a simulated cell's scenario TOML, or a name in models/scenarios/."""
+    parser.add_argument(
+        "--scenario",
+        type=Path,
+        help="scenario TOML file, or a name in models/scenarios/ (realistic); default: the ideal cell",
+    )

@@ -36,11 +36,7 @@ USER_ERRORS = (
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="render a simulated calibration dataset")
     p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
-    p.add_argument(
-        "--scenario",
-        type=Path,
-        help="scenario TOML file, or a name in models/scenarios/ (realistic); default: the ideal cell",
-    )
+    arguments.add_scenario(p)
     p.add_argument("--seed", type=arguments.seed, help="noise seed (default: the scenario's 'seed')")
     p.add_argument("--force", action="store_true", help="replace --out if it exists")
     p.add_argument(

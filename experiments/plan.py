@@ -26,6 +26,7 @@ from estimator.solve.view_planning import (
     reachable,
     view_informations,
 )
+from experiments import arguments
 
 DEFAULT_VIEWS = 12
 DEFAULT_MAX_VIEWS = 40
@@ -34,11 +35,7 @@ DEFAULT_MAX_VIEWS = 40
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("plan", help="choose views by the information they add; write a waypoint file")
     p.add_argument("--out", required=True, type=Path, help="waypoint CSV to write")
-    p.add_argument(
-        "--scenario",
-        type=Path,
-        help="scenario TOML file, or a name in models/scenarios/; default: the ideal cell",
-    )
+    arguments.add_scenario(p)
     p.add_argument("--views", type=int, help=f"how many views (default {DEFAULT_VIEWS} without a target)")
     p.add_argument(
         "--target-sigma-mm", type=float, help="stop when the predicted RSS 1-sigma is this (mm) ..."
