@@ -3,9 +3,10 @@
 `hec record`, `hec run` and a scenario's `trajectory.kind = "file"` take.
 
 The candidates are predicted with the scenario's nominal mount, board pose, camera, robot pose noise
-and depth noise, and a corner noise the detector reports (--corner-sigma-px). Each chosen view is
-checked for inverse kinematics within the arm's joint limits; `hec simulate` still checks every
-waypoint against the cell (collisions, the board hidden by the arm) and skips the ones that fail."""
+and depth noise, and a corner noise the detector reports (--corner-sigma-px). Each view the
+planner would choose is first checked in the simulated cell as `hec simulate` checks a waypoint
+(sim.cell.SimCell.move_to: inverse kinematics within the joint limits from the previous view's
+joints, no collision, every marker in view and not hidden); a refused one is passed over."""
 
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
 from estimator.geometry.waypoints import Waypoint, rotation_rich_waypoints, waypoint_csv
 from estimator.io.files import write_atomic
 from estimator.observe.synthetic import SyntheticNoise
@@ -23,7 +23,6 @@ from estimator.solve.view_planning import (
     candidate_views,
     plan_views,
     predicted_sigmas,
-    reachable,
     view_informations,
 )
 from experiments import arguments
@@ -80,6 +79,7 @@ def _count_and_target(args: argparse.Namespace) -> tuple[int, tuple[float, float
 
 
 def run(args: argparse.Namespace) -> int:
+    from sim.cell import SimCell
     from sim.noise import depth_noise_model, robot_pose_noise_model
     from sim.scenario import load_scenario
 
@@ -94,15 +94,10 @@ def run(args: argparse.Namespace) -> int:
     distance = scenario.trajectory.distance_m
     candidates = candidate_views(T_base_board, T_flange_cam, distance, args.candidates, rng)
     usable, informations = view_informations(candidates, board, intrinsics, T_flange_cam, T_base_board, noise)
-    kinematics, joints = ROBOTS[scenario.robot], [IK_RESTARTS[2]]
-
-    def accept(k: int) -> bool:
-        q = reachable(candidates[usable[k]], kinematics, joints[-1])
-        if q is not None:
-            joints.append(q)
-        return q is not None
-
-    steps = plan_views(informations, count, args.criterion, target, accept)
+    cell = SimCell(scenario, np.random.default_rng(scenario.seed))
+    steps = plan_views(
+        informations, count, args.criterion, target, lambda k: cell.accepts(candidates[usable[k]])
+    )
     default = rotation_rich_waypoints(T_base_board, T_flange_cam, distance)
     _, default_informations = view_informations(default, board, intrinsics, T_flange_cam, T_base_board, noise)
     default_mm, default_deg = predicted_sigmas(default_informations.sum(axis=0))

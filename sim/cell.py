@@ -110,6 +110,15 @@ class SimCell:
         self.set_joints(previous)
         raise WaypointRejected(problem)
 
+    def accepts(self, waypoint: Waypoint) -> bool:
+        """Whether the cell takes the waypoint from the current joints (see move_to); it moves
+        there when it does."""
+        try:
+            self.move_to(waypoint)
+        except WaypointRejected:
+            return False
+        return True
+
     def flange_pose(self) -> np.ndarray:
         """Reported T_base_flange (4, 4): the nominal kinematics of the measured joints, with the
         robot pose noise (without arm errors: the true pose with the robot pose noise)."""
