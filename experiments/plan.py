@@ -1,30 +1,43 @@
 """`hec plan --out W.csv`: views chosen by the information about T_flange_cam they add
-(estimator.solve.view_planning), for a simulated cell's scenario, as a waypoint file that
-`hec record`, `hec run` and a scenario's `trajectory.kind = "file"` take.
+(estimator.solve.view_planning), as a waypoint file that `hec record`, `hec run` and a scenario's
+`trajectory.kind = "file"` take.
 
-The candidates are predicted with the scenario's nominal mount, board pose, camera, robot pose noise
-and depth noise, and a corner noise the detector reports (--corner-sigma-px). Each view the
-planner would choose is first checked in the simulated cell as `hec simulate` checks a waypoint
-(sim.cell.SimCell.move_to: inverse kinematics within the joint limits from the previous view's
-joints, no collision, every marker in view and not hidden); a refused one is passed over."""
+The candidates are predicted with a nominal mount, board pose, camera, robot pose noise and depth
+noise, and a corner noise the detector reports (--corner-sigma-px). They come from either
+- a simulated cell's scenario (--scenario, default the built-in one): each view the planner would
+  choose is first checked in the simulated cell as `hec simulate` checks a waypoint
+  (sim.cell.SimCell.accepts: inverse kinematics within the joint limits from the previous view's
+  joints, no collision, every marker in view and not hidden), or
+- a real cell's calibration (--calibration CAL.json, with --cell F and the dataset it came from):
+  its mount and board pose, the dataset's camera, board, depth noise and viewing distance, the cell
+  file's arm, pose noise, joint limits and workspace box (nominal kinematics; no renderer).
+A refused view is passed over and the next best taken."""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
+from estimator.geometry.transforms import invert
 from estimator.geometry.waypoints import Waypoint, rotation_rich_waypoints, waypoint_csv
 from estimator.io.files import write_atomic
 from estimator.observe.synthetic import SyntheticNoise
+from estimator.solve.methods import METHODS
 from estimator.solve.view_planning import (
     CRITERIA,
     candidate_views,
     plan_views,
     predicted_sigmas,
+    reachable,
     view_informations,
 )
+from estimator.targets.board import BoardDefinition
 from experiments import arguments
 
 DEFAULT_VIEWS = 12
@@ -35,6 +48,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("plan", help="choose views by the information they add; write a waypoint file")
     p.add_argument("--out", required=True, type=Path, help="waypoint CSV to write")
     arguments.add_scenario(p)
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="CAL.json",
+        help="plan for the real cell of this calibration (hec calibrate --json) instead of a scenario",
+    )
+    p.add_argument(
+        "--method", choices=list(METHODS), help="--calibration: the result to use (default: its first)"
+    )
+    p.add_argument(
+        "--dataset", type=Path, help="--calibration: the dataset it came from (default: the one it names)"
+    )
+    p.add_argument(
+        "--cell", type=Path, metavar="FILE", help="--calibration: cell TOML (see models/cells/ur5_d435.toml)"
+    )
     p.add_argument("--views", type=int, help=f"how many views (default {DEFAULT_VIEWS} without a target)")
     p.add_argument(
         "--target-sigma-mm", type=float, help="stop when the predicted RSS 1-sigma is this (mm) ..."
@@ -60,6 +88,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _count_and_target(args: argparse.Namespace) -> tuple[int, tuple[float, float] | None]:
+    if args.calibration is not None and args.scenario is not None:
+        raise ValueError("give --scenario (a simulated cell) or --calibration (a real cell), not both")
+    real_only = [f"--{o}" for o in ("method", "dataset", "cell") if getattr(args, o) is not None]
+    if args.calibration is None and real_only:
+        raise ValueError(f"{', '.join(real_only)}: only with --calibration")
     target = (args.target_sigma_mm, args.target_sigma_deg)
     if (target[0] is None) != (target[1] is None):
         raise ValueError("--target-sigma-mm and --target-sigma-deg go together: give both or neither")
@@ -78,29 +111,127 @@ def _count_and_target(args: argparse.Namespace) -> tuple[int, tuple[float, float
     return count, None if target[0] is None else target
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass(frozen=True)
+class PlanningCell:
+    """What planning needs of a cell: the board and camera, the nominal T_flange_cam and T_base_board
+    ((4, 4), metres), a frame's noise, the nominal distance to the board (m), accepts (True when the
+    arm can take a view from the last view accepted) and the views to compare with (name, waypoints)."""
+
+    board: BoardDefinition
+    intrinsics: CameraIntrinsics
+    T_flange_cam: np.ndarray
+    T_base_board: np.ndarray
+    noise: SyntheticNoise
+    distance_m: float
+    accepts: Callable[[Waypoint], bool]
+    reference: tuple[str, list[Waypoint]]
+
+
+def simulated_cell(args: argparse.Namespace) -> PlanningCell:
+    """The scenario's nominal cell; views are checked in its simulated cell as `hec simulate` checks
+    a waypoint (sim.cell.SimCell.accepts)."""
     from sim.cell import SimCell
     from sim.noise import depth_noise_model, robot_pose_noise_model
     from sim.scenario import load_scenario
 
-    count, target = _count_and_target(args)
     scenario = load_scenario(args.scenario)
-    board, intrinsics = scenario.board_definition(), scenario.camera.intrinsics()
     T_base_board, T_flange_cam = scenario.board.transform(), scenario.mount.transform()
     noise = SyntheticNoise(
         args.corner_sigma_px, depth_noise_model(scenario.noise), robot_pose_noise_model(scenario.noise)
     )
-    rng = np.random.default_rng(args.seed)
     distance = scenario.trajectory.distance_m
-    candidates = candidate_views(T_base_board, T_flange_cam, distance, args.candidates, rng)
-    usable, informations = view_informations(candidates, board, intrinsics, T_flange_cam, T_base_board, noise)
+    default = rotation_rich_waypoints(T_base_board, T_flange_cam, distance)
     cell = SimCell(scenario, np.random.default_rng(scenario.seed))
+    return PlanningCell(
+        scenario.board_definition(),
+        scenario.camera.intrinsics(),
+        T_flange_cam,
+        T_base_board,
+        noise,
+        distance,
+        cell.accepts,
+        (f"the default {len(default)} views", default),
+    )
+
+
+def calibrated_cell(args: argparse.Namespace) -> PlanningCell:
+    """A real cell from a calibration (its mount and board pose) and the dataset it came from (the
+    camera, the board, the depth noise, the distance of its views): views are checked with the
+    cell file's nominal kinematics, joint limits and workspace box, no renderer."""
+    from estimator.io.calibration_file import CalibrationFileError, pose_field, read_calibration
+    from estimator.io.dataset import load_dataset
+    from estimator.observe.observations import dataset_depth_noise
+    from experiments.session.cell_config import load_cell_config
+
+    cal = read_calibration(args.calibration, args.method)
+    if cal.pose_frame != "flange":
+        raise CalibrationFileError(
+            f"{args.calibration}: calibrated with the robot's {cal.pose_frame} poses; plan from a "
+            "calibration of flange poses (the waypoints are flange poses)"
+        )
+    if cal.data.get("T_base_board") is None:
+        raise CalibrationFileError(
+            f"{args.calibration}: the {cal.method} result has no board pose (T_base_board); plan from a "
+            "method that estimates one, such as the default"
+        )
+    T_base_board = pose_field(cal.data, "T_base_board", cal.path, CalibrationFileError)
+    root = args.dataset if args.dataset is not None else cal.dataset
+    if root is None:
+        raise CalibrationFileError(
+            f"{args.calibration}: names no dataset; give the one it came from with --dataset"
+        )
+    dataset = load_dataset(root)
+    config = load_cell_config(args.cell)
+    kinematics, limits = ROBOTS[config.robot.model], config.robot.limits()
+    box = (config.robot.workspace_lower_m, config.robot.workspace_upper_m)
+    joints = [IK_RESTARTS[2]]
+
+    def accepts(waypoint: Waypoint) -> bool:
+        q = reachable(waypoint, kinematics, joints[-1], box)
+        if q is None or limits.problem_with_joints(q) is not None:
+            return False
+        joints.append(q)
+        return True
+
+    recorded = [
+        Waypoint(i, f"frame {i}", T_base_flange=np.asarray(row["T_base_flange"]))
+        for i, row in enumerate(dataset.rows)
+    ]
+    T_cam_flange = invert(cal.T_flange_cam)
+    distances = [
+        np.linalg.norm((T_cam_flange @ invert(w.T_base_flange) @ T_base_board)[:3, 3]) for w in recorded
+    ]
+    noise = SyntheticNoise(args.corner_sigma_px, dataset_depth_noise(dataset), config.robot.pose_noise())
+    return PlanningCell(
+        dataset.board,
+        dataset.intrinsics,
+        cal.T_flange_cam,
+        T_base_board,
+        noise,
+        float(np.median(distances)),
+        accepts,
+        (f"the {len(recorded)} views of {dataset.root}", recorded),
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    count, target = _count_and_target(args)
+    cell = calibrated_cell(args) if args.calibration is not None else simulated_cell(args)
+    nominal = (cell.intrinsics, cell.T_flange_cam, cell.T_base_board, cell.noise)
+    rng = np.random.default_rng(args.seed)
+    candidates = candidate_views(cell.T_base_board, cell.T_flange_cam, cell.distance_m, args.candidates, rng)
+    usable, informations = view_informations(candidates, cell.board, *nominal)
     steps = plan_views(
         informations, count, args.criterion, target, lambda k: cell.accepts(candidates[usable[k]])
     )
-    default = rotation_rich_waypoints(T_base_board, T_flange_cam, distance)
-    _, default_informations = view_informations(default, board, intrinsics, T_flange_cam, T_base_board, noise)
-    default_mm, default_deg = predicted_sigmas(default_informations.sum(axis=0))
+    if not steps:
+        raise ValueError(
+            f"none of the {len(usable)} candidates with the whole board in view passes the cell's checks "
+            "(reach, joint limits, workspace, collisions)"
+        )
+    name, reference = cell.reference
+    _, reference_informations = view_informations(reference, cell.board, *nominal)
+    reference_mm, reference_deg = predicted_sigmas(reference_informations.sum(axis=0))
     waypoints = []
     print(f"{len(usable)} of {args.candidates} candidates hold the whole board in view; {args.criterion}:")
     for k, step in enumerate(steps):
@@ -119,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
             + (f"reached with {len(steps)} views" if reached else f"not reached in {len(steps)} views")
         )
     print(
-        f"the default {len(default)} views predict {default_mm:.3f} mm / {default_deg:.4f} deg (RSS 1-sigma, "
+        f"{name} predict {reference_mm:.3f} mm / {reference_deg:.4f} deg (RSS 1-sigma, "
         f"corners at {args.corner_sigma_px:g} px)"
     )
     write_atomic(args.out, waypoint_csv(waypoints))

@@ -183,9 +183,42 @@ def test_hec_plan_writes_planned_views_the_simulator_renders_and_calibrates(tmp_
         (["--views", "2"], "at least 3 views"),
         (["--target-sigma-mm", "0", "--target-sigma-deg", "0.02"], "both must be > 0"),
         (["--views", "20", "--candidates", "10"], "--candidates 10 must be at least the views (20)"),
+        (["--calibration", "c.json", "--scenario", "realistic"], "not both"),
+        (["--cell", "cell.toml"], "--cell: only with --calibration"),
     ],
 )
 def test_hec_plan_refuses_bad_options(tmp_path: Path, argv: list[str], said: str) -> None:
     code, _, err = run_hec(["plan", "--out", str(tmp_path / "w.csv"), *argv])
     assert code == 2 and said in err, err
     assert not (tmp_path / "w.csv").exists()
+
+
+def test_hec_plan_for_a_real_cell_keeps_its_views_in_the_cell_files_workspace_box(
+    tmp_path: Path, default_dataset: Path
+) -> None:
+    """Planned from a calibration and its dataset, with the workspace box just around the recorded
+    flange positions: every planned flange is inside the box and reachable, and the plan predicts
+    less than the recorded views do."""
+    from estimator.io.dataset import load_dataset
+
+    cal = tmp_path / "cal.json"
+    code, _, err = run_hec(["calibrate", str(default_dataset), "--no-loo", "--json", str(cal), "--quiet"])
+    assert code == 0, err
+    recorded = np.array([row["T_base_flange"][:3, 3] for row in load_dataset(default_dataset).rows])
+    lower, upper = recorded.min(axis=0) - 0.02, recorded.max(axis=0) + 0.02
+    cell = tmp_path / "cell.toml"
+    cell.write_text(f"[robot]\nworkspace_lower_m = {lower.tolist()}\nworkspace_upper_m = {upper.tolist()}\n")
+    out = tmp_path / "planned.csv"
+    argv = ["plan", "--out", str(out), "--calibration", str(cal), "--cell", str(cell), "--views", "10"]
+    code, said, err = run_hec([*argv, "--candidates", "400", "--corner-sigma-px", "0.05"])
+    assert code == 0, err
+    waypoints = read_waypoint_file(out)
+    assert len(waypoints) == 10
+    for w in waypoints:
+        p = w.T_base_flange[:3, 3]
+        assert np.all(p >= lower) and np.all(p <= upper), p
+        assert reachable(w, UR5, np.zeros(6)) is not None
+    last = re.findall(r"predicted 1-sigma ([0-9.]+) mm / ([0-9.]+) deg", said)[-1]
+    recorded_sigma = re.search(r"the 17 views of \S+ predict ([0-9.]+) mm / ([0-9.]+) deg", said)
+    assert recorded_sigma is not None, said
+    assert float(last[0]) < float(recorded_sigma[1]) and float(last[1]) < float(recorded_sigma[2]), said
