@@ -54,6 +54,14 @@ _ORDERINGS = [np.roll(np.arange(4), -k) for k in range(4)] + [
 ]
 
 
+# The rows of homography_from_corners' linear system that do not depend on the corners (8, 8), and
+# the symbol coordinates (a, b) its last two columns multiply by -u or -v (8, 2), rows u0, v0, ..., v3.
+_HOMOGRAPHY_AB = np.repeat(UNIT_SQUARE, 2, axis=0)
+_HOMOGRAPHY_ROWS = np.zeros((8, 8))
+_HOMOGRAPHY_ROWS[0::2, 0:2] = _HOMOGRAPHY_ROWS[1::2, 3:5] = UNIT_SQUARE
+_HOMOGRAPHY_ROWS[0::2, 2] = _HOMOGRAPHY_ROWS[1::2, 5] = 1.0
+
+
 class MarkerFitError(ValueError):
     """The code could not be aligned to the image; the message says why."""
 
@@ -64,10 +72,8 @@ def homography_from_corners(corners_px: np.ndarray) -> np.ndarray:
     corners_px: (4, 2) image corners in the marker's order. Solved in float64.
     """
     corners_px = np.asarray(corners_px, dtype=np.float64)
-    A = np.zeros((8, 8))
-    for k, ((a, b), (u, v)) in enumerate(zip(UNIT_SQUARE, corners_px, strict=True)):
-        A[2 * k] = [a, b, 1.0, 0.0, 0.0, 0.0, -a * u, -b * u]
-        A[2 * k + 1] = [0.0, 0.0, 0.0, a, b, 1.0, -a * v, -b * v]
+    A = _HOMOGRAPHY_ROWS.copy()
+    A[:, 6:] = -_HOMOGRAPHY_AB * corners_px.reshape(8, 1)
     return np.append(np.linalg.solve(A, corners_px.ravel()), 1.0).reshape(3, 3)
 
 
