@@ -19,6 +19,7 @@ import argparse
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +40,9 @@ from estimator.solve.view_planning import (
 )
 from estimator.targets.board import BoardDefinition
 from experiments import arguments
+
+if TYPE_CHECKING:
+    from sim.scenario import Scenario
 
 DEFAULT_VIEWS = 12
 DEFAULT_MAX_VIEWS = 40
@@ -125,6 +129,15 @@ class PlanningCell:
     distance_m: float
     accepts: Callable[[Waypoint], bool]
     reference: tuple[str, list[Waypoint]]
+
+
+def scenario_candidates(scenario: Scenario, count: int, rng: np.random.Generator) -> list[Waypoint]:
+    """count random candidate views (view_planning.candidate_views, flange poses in the base frame)
+    aimed at the scenario's nominal board pose through its nominal mount, around its trajectory's
+    distance."""
+    return candidate_views(
+        scenario.board.transform(), scenario.mount.transform(), scenario.trajectory.distance_m, count, rng
+    )
 
 
 def simulated_cell(args: argparse.Namespace) -> PlanningCell:

@@ -34,6 +34,7 @@ REAL_CELL_MODULES = (
     "hardware.ur_robot",
     "experiments.session.session",
     "experiments.session.record",
+    "experiments.session.adaptive",
     "experiments.session.teach",
     "experiments.session.cell_config",
     "experiments.cli",

@@ -288,3 +288,19 @@ def _check_resume_keeps_the_noise_seed(argv: list[str], default: Path, other: Pa
     assert main([*argv, str(default), "--resume"]) == 0
     assert main([*argv, str(default), "--resume", "--noise-seed", str(TEST_SEED + 1)]) == 2
     assert f"'simulation.noise_seed' was None and is now {TEST_SEED + 1}" in capsys.readouterr().err
+
+
+def test_an_adaptive_session_on_the_real_cell_path_picks_from_the_taught_pool(
+    real_cell: RealCell, tmp_path: Path, capsys
+) -> None:
+    """Without nominal values the first views are spread over the pool; then the running estimate
+    chooses, and the session stops at the target (experiments.session.adaptive)."""
+    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario())
+    out = tmp_path / "adaptive"
+    target = ("--target-sigma-mm", "0.2", "--target-sigma-deg", "0.02")
+    assert real_cell.record("--waypoints", str(waypoints), *target, "--out", str(out), "--yes") == 0
+    block = load_dataset(out).metadata["session"]["adaptive"]
+    chosen = [v["waypoint"] for v in block["chosen"]]
+    assert block["reached"] and len(chosen) < 17 and len(set(chosen)) == len(chosen)
+    assert chosen[:3] == [3, 8, 14]  # spread_views over the 17 waypoints
+    assert f"target reached after {len(chosen)} views" in capsys.readouterr().out

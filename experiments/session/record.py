@@ -4,8 +4,13 @@ or, with --sim, on the simulated one; `hec run` calibrates the recording afterwa
 Order on the real cell: read the waypoints, connect to the arm, plan (joint targets, limits,
 workspace box), print the plan, stop there for --dry-run, open the camera, ask before the
 first motion (unless --yes), then record frame by frame (experiments.session.session).
-Exit codes: 0 done, 2 nothing moved (bad input, refused, unreachable), 3 the session
-stopped part-way (the frames so far are kept; --resume continues).
+With --target-sigma-mm/--target-sigma-deg the session is adaptive (experiments.session.adaptive):
+each next view is chosen from a pool (a --waypoints file, or in simulation candidate views around the
+scenario's nominal values) and the session stops once the running estimate's RSS 1-sigma reaches the
+target, or at --max-views.
+Exit codes: 0 done (an adaptive session too when it did not reach its target: it says so, and the
+dataset.json session block records it), 2 nothing moved (bad input, refused, unreachable), 3 the
+session stopped part-way (the frames so far are kept; --resume continues a fixed plan).
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,11 +38,19 @@ from estimator.io.lock import FolderLockedError
 from estimator.solve.methods import DEFAULT_METHOD, METHODS
 from estimator.solve.verify import spread_views
 from experiments import arguments
+from experiments.session.adaptive import (
+    DEFAULT_MAX_VIEWS,
+    POOL_CANDIDATES,
+    AdaptiveViews,
+    TargetError,
+    sigma_target,
+)
 from experiments.session.cell_config import CellConfig, CellConfigError, load_cell_config
 from experiments.session.session import LiveEstimate, SessionCell, run_session
 
 if TYPE_CHECKING:
     from hardware.cell import HardwareCell
+    from sim.session_cell import SimulatedCell
 
 EXIT_STOPPED = 3
 CALIBRATION_FILE = "calibration.json"
@@ -44,6 +58,9 @@ CALIBRATION_FILE = "calibration.json"
 # scenario (its trajectory, mount, noise), the frame the robot poses are in, and the waypoints (a
 # --waypoints file may stand in for the scenario's trajectory, and a file may have been edited).
 RESUME_FIXED = ("simulation", "pose_frame", "waypoints")
+# Tags the adaptive session's candidate pool stream, apart from default_rng(seed) (the true cell) and
+# sim.noise.waypoint_rng's stream (the frames' noise).
+_POOL_STREAM = 2
 
 
 class RecordError(ValueError):
@@ -91,6 +108,20 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--yes", action="store_true", help="do not ask before the first motion")
         p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
         p.add_argument("--no-live", action="store_true", help="no detection and running estimate per frame")
+        p.add_argument(
+            "--target-sigma-mm",
+            type=float,
+            metavar="MM",
+            help="adaptive session: choose each next view by the information it adds and stop when the "
+            "running estimate's RSS 1-sigma is this (mm) ...",
+        )
+        p.add_argument("--target-sigma-deg", type=float, metavar="DEG", help="... and this (degrees)")
+        p.add_argument(
+            "--max-views",
+            type=int,
+            metavar="N",
+            help=f"adaptive session: stop after N views (default {DEFAULT_MAX_VIEWS})",
+        )
         if name == "run":
             p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS))
             p.add_argument(
@@ -112,7 +143,7 @@ def _check_out(args: argparse.Namespace) -> None:
         raise RecordError(f"{args.out} already exists; add --resume to continue it, or choose another --out")
 
 
-def _open_sim(args: argparse.Namespace) -> tuple[SessionCell, list[Waypoint], dict, GroundTruth, Callable]:
+def _open_sim(args: argparse.Namespace) -> tuple[SimulatedCell, list[Waypoint], dict, GroundTruth, Callable]:
     from sim.cell import SimCell
     from sim.scenario import load_scenario
     from sim.session_cell import SimulatedCell
@@ -217,6 +248,7 @@ def run(
 
     user_errors: tuple[type[Exception], ...] = (
         RecordError,
+        TargetError,
         CellConfigError,
         WaypointFileError,
         RobotError,
@@ -230,6 +262,7 @@ def run(
 
         user_errors += (ScenarioError,)
     try:
+        sigma_target(args)
         _check_out(args)
         if args.sim:
             return _record_sim(args)
@@ -242,14 +275,43 @@ def run(
 def _record_sim(args: argparse.Namespace) -> int:
     cell, waypoints, extra, truth, forward_fk = _open_sim(args)
     try:
+        if sigma_target(args) is not None and args.waypoints is None:
+            return _record_sim_adaptive(args, cell, extra, truth)
         moves = cell.plan(waypoints)
         _print_plan(moves, forward_fk)
         if args.dry_run:
             print("dry run: nothing moved")
             return 0
-        return _session(args, cell, moves, extra, truth)
+        return _session(args, cell, moves, extra, truth, _nominal(cell), forward_fk)
     finally:
         cell.close()
+
+
+def _nominal(cell: SimulatedCell) -> tuple[np.ndarray, np.ndarray]:
+    """A simulated cell's scenario's nominal T_flange_cam and T_base_board (4, 4)."""
+    scenario = cell.cell.scenario
+    return scenario.mount.transform(), scenario.board.transform()
+
+
+def _record_sim_adaptive(
+    args: argparse.Namespace, cell: SimulatedCell, extra: dict, truth: GroundTruth
+) -> int:
+    """The adaptive session on the simulated cell, its pool POOL_CANDIDATES candidate views drawn
+    around the scenario's nominal values (from the session's seed)."""
+    from experiments.plan import scenario_candidates
+
+    seed = extra["simulation"]["seed"]
+    pool = scenario_candidates(
+        cell.cell.scenario, POOL_CANDIDATES, np.random.default_rng([seed, _POOL_STREAM])
+    )
+    print(
+        f"adaptive session: a pool of {len(pool)} candidate views around the scenario's nominal mount "
+        "and board pose; each chosen view is planned (IK, collisions, markers in view) when chosen"
+    )
+    if args.dry_run:
+        print("dry run: nothing moved")
+        return 0
+    return _session(args, cell, [], extra, truth, _nominal(cell), pool=pool)
 
 
 def _record_hardware(
@@ -276,17 +338,26 @@ def _record_hardware(
         if args.dry_run:
             print("dry run: nothing moved")
             return 0
+        target = sigma_target(args)
+        if target is not None and config.robot.pose_frame != "flange":
+            raise RecordError(
+                "an adaptive session (--target-sigma-mm/--target-sigma-deg) needs robot.pose_frame = "
+                f"'flange' in the cell file, not {config.robot.pose_frame!r}"
+            )
         with RealSenseCamera(config.camera_settings(args.camera), camera_context) as camera:
             usable = sum(m.joints is not None for m in moves)
+            if target is not None:
+                usable = min(usable, target.max_views)
             question = (
-                f"The arm at {robot.host} will move through {usable} waypoints. Keep the cell clear and a "
-                "hand on the emergency stop. Start? [y/N] "
+                f"The arm at {robot.host} will move through {'up to ' if target else ''}{usable} waypoints. "
+                "Keep the cell clear and a hand on the emergency stop. Start? [y/N] "
             )
             if not args.yes and not _confirm(question, read_line):
                 print("not started: nothing moved")
                 return 2
             cell = HardwareCell(robot, camera, find_board(config.board), inverse, config.robot.pose_frame)
-            return _session(args, cell, moves, _hardware_metadata(args, config, cell), None)
+            extra = _hardware_metadata(args, config, cell)
+            return _session(args, cell, moves, extra, None, None, lambda q: forward(kinematics, q))
 
 
 def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: HardwareCell) -> dict:
@@ -313,15 +384,36 @@ def _print_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.
     print(format_plan(moves, forward_fk))
 
 
+def _pool(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> list[Waypoint]:
+    """An adaptive session's pool from a waypoint file's plan: the usable waypoints, each with its
+    flange pose (joint waypoints: the nominal kinematics of their joints)."""
+    return [
+        replace(m.waypoint, T_base_flange=forward_fk(m.joints))
+        if m.waypoint.T_base_flange is None
+        else m.waypoint
+        for m in moves
+        if m.joints is not None
+    ]
+
+
 def _session(
     args: argparse.Namespace,
     cell: SessionCell,
     moves: list[PlannedMove],
     extra: dict,
     truth: GroundTruth | None,
+    nominal: tuple[np.ndarray, np.ndarray] | None = None,
+    forward_fk: Callable[[np.ndarray], np.ndarray] | None = None,
+    pool: list[Waypoint] | None = None,
 ) -> int:
-    """Record the planned moves into --out (or resume it), then report; `hec run` calibrates."""
-    if not any(m.joints is not None for m in moves):
+    """Record the planned moves into --out (or resume it), then report; `hec run` calibrates.
+    With a target the session is adaptive: its pool is pool, else the usable planned moves'
+    waypoints (flange poses from forward_fk for joint waypoints); nominal: the (T_flange_cam,
+    T_base_board) (4, 4) its first views are chosen at (None: spread over the pool)."""
+    target = sigma_target(args)
+    if target is not None and pool is None:
+        pool = _pool(moves, forward_fk)
+    if not (pool if target is not None else any(m.joints is not None for m in moves)):
         raise RecordError("no waypoint can be used; see the reasons above")
     if getattr(args, "verify", None) is not None:
         moves = spread_views([m for m in moves if m.joints is not None])
@@ -333,24 +425,29 @@ def _session(
         cell.board,
         cell.depth_scale_m,
         cell.source,
-        extra=extra | {"waypoints": waypoints_fingerprint([m.waypoint for m in moves])},
+        extra=extra | {"waypoints": waypoints_fingerprint(pool or [m.waypoint for m in moves])},
         ground_truth=truth,
         resume=args.resume,
         fixed=RESUME_FIXED,
     ) as recorder:  # unlocked however the session ends
         for note in recorder.notes:
             print(f"note: {note}", file=sys.stderr)
-        live = None if args.no_live else LiveEstimate(recorder.root)
-        outcome = run_session(cell, moves, recorder, live)
+        target_sigma = None if target is None else (target.sigma_mm, target.sigma_deg)
+        live = None if args.no_live else LiveEstimate(recorder.root, target_sigma=target_sigma)
+        adaptive = None if target is None else AdaptiveViews(cell, pool, live, target, nominal)
+        outcome = run_session(cell, moves if adaptive is None else adaptive, recorder, live)
     print(f"dataset: {outcome.root} ({outcome.total} frames, {outcome.recorded} recorded now)")
     if outcome.stopped is not None:
         print(f"hec: session stopped: {outcome.stopped}", file=sys.stderr)
-        print(
-            f"the {outcome.total} frames recorded are kept in {outcome.root}; fix the cause, then run the "
-            "same command with --resume",
-            file=sys.stderr,
+        then = (
+            "fix the cause, then run the same command with --resume"
+            if adaptive is None
+            else f"an adaptive session cannot be resumed: `hec calibrate {outcome.root}`, or start a new one"
         )
+        print(f"the {outcome.total} frames recorded are kept in {outcome.root}; {then}", file=sys.stderr)
         return EXIT_STOPPED
+    if adaptive is not None:
+        print(adaptive.summary())
     if args.command == "run" and args.verify is not None:
         return _verify(args)
     if args.command == "run":

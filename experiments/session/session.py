@@ -2,12 +2,14 @@
 waypoint move, settle, capture, read the pose, write the frame, and (optionally) detect it
 and re-run the EKF over every frame so far to show the running estimate and its sigma.
 
-A cell (SessionCell) is sim.session_cell.SimulatedCell or hardware.cell.HardwareCell.
+A cell (SessionCell) is sim.session_cell.SimulatedCell or hardware.cell.HardwareCell. The moves are
+a fixed plan or a MoveSource that chooses each after the frames before it (the adaptive session,
+experiments.session.adaptive).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -56,13 +58,36 @@ class SessionCell(Protocol):
     def close(self) -> None: ...
 
 
+class MoveSource(Protocol):
+    """Moves handed out one at a time, each once the frames before it are recorded and detected.
+    max_moves: the most it hands out (the progress line's count); record(): what dataset.json's
+    session block keeps of the choice."""
+
+    max_moves: int
+
+    def __iter__(self) -> Iterator[PlannedMove]: ...
+    def record(self) -> dict: ...
+
+
+def rss_sigmas(cal: Calibration) -> tuple[float, float] | None:
+    """Root sum of squares of the per-axis 1-sigmas of T_flange_cam: (mm, deg); None without a
+    covariance."""
+    if cal.covariance is None:
+        return None
+    return float(np.linalg.norm(cal.sigma_translation_mm)), float(np.linalg.norm(cal.sigma_rotation_deg))
+
+
 class LiveEstimate:
     """Detects each new frame of a recording and runs the EKF over every frame so far, with
     the dataset's depth and robot noise as declared (learning them from a few frames at every frame
     would cost seconds and say little; `hec calibrate` and `hec run`'s final calibration learn them
-    from all frames), so the running estimate shows how the views add up as they come."""
+    from all frames), so the running estimate shows how the views add up as they come.
+    latest: the estimate over every frame so far, None until one exists. target_sigma: (mm, deg)
+    RSS 1-sigmas each line compares the estimate's with (None: no comparison)."""
 
-    def __init__(self, root: Path, method: str = DEFAULT_METHOD) -> None:
+    def __init__(
+        self, root: Path, method: str = DEFAULT_METHOD, target_sigma: tuple[float, float] | None = None
+    ) -> None:
         dataset = load_dataset(root)
         self.board, self.intrinsics = dataset.board, dataset.intrinsics
         self.depth_noise = dataset_depth_noise(dataset)
@@ -70,6 +95,8 @@ class LiveEstimate:
         self.settings = DetectorSettings()
         self.detector = QRDetector(dataset.board, self.settings)
         self.method = method
+        self.target_sigma = target_sigma
+        self.latest: Calibration | None = None
         self.observations: list[FrameObservations] = observe_dataset(dataset, self.settings, self.depth_noise)
 
     def add(self, index: int, frame: Frame) -> str:
@@ -101,14 +128,21 @@ class LiveEstimate:
 
     def _estimate_line(self) -> str:
         try:
-            cal = self.estimate()
+            cal = self.latest = self.estimate()
         except _NOT_YET as exc:
+            self.latest = None
             return f"not yet ({exc})"
         t = 1e3 * cal.T_flange_cam[:3, 3]
         line = "t [" + " ".join(f"{v:+.2f}" for v in t) + "] mm"
         if cal.sigma_translation_mm is not None:
             line += " +- [" + " ".join(f"{v:.2f}" for v in cal.sigma_translation_mm) + "] mm"
             line += ", rotation +- [" + " ".join(f"{v:.3f}" for v in cal.sigma_rotation_deg) + "] deg"
+        rss = rss_sigmas(cal)
+        if self.target_sigma is not None and rss is not None:
+            line += (
+                f" | RSS {rss[0]:.3f} mm / {rss[1]:.4f} deg, target {self.target_sigma[0]:g} mm / "
+                f"{self.target_sigma[1]:g} deg"
+            )
         return line
 
     def save(self, root: Path) -> list[Path]:
@@ -144,23 +178,28 @@ class SessionOutcome:
 
 def run_session(
     cell: SessionCell,
-    moves: list[PlannedMove],
+    moves: list[PlannedMove] | MoveSource,
     recorder: DatasetRecorder,
     live: LiveEstimate | None = None,
     say: Callable[[str], None] = print,
 ) -> SessionOutcome:
-    """Visit every planned move not yet recorded (a resumed session skips those), writing
-    each frame as it is captured. A stop of the arm or camera, a full disk, or Ctrl-C ends the
-    session with the frames so far kept and dataset.json marked 'interrupted'."""
+    """Visit every planned move not yet recorded (a resumed session skips those), or each move a
+    MoveSource hands out, writing each frame as it is captured. A stop of the arm or camera, a full
+    disk, or Ctrl-C ends the session with the frames so far kept and dataset.json marked
+    'interrupted'."""
     outcome = SessionOutcome(recorder.root)
-    done = recorder.recorded_waypoints
-    todo = [m for m in moves if m.waypoint.index not in done]
-    if done:
-        say(f"resuming: {len(recorder.rows)} frames recorded before, {len(todo)} waypoints to go")
+    if isinstance(moves, list):
+        done = recorder.recorded_waypoints
+        todo: list[PlannedMove] | MoveSource = [m for m in moves if m.waypoint.index not in done]
+        count = len(todo)
+        if done:
+            say(f"resuming: {len(recorder.rows)} frames recorded before, {count} waypoints to go")
+    else:
+        todo, count = moves, moves.max_moves
     try:
         for n, move in enumerate(todo, start=1):
             w = move.waypoint
-            head = f"[{n}/{len(todo)}] waypoint {w.index} ({w.label})"
+            head = f"[{n}/{count}] waypoint {w.index} ({w.label})"
             try:
                 if move.problem is not None:
                     raise WaypointRejected(move.problem)
@@ -179,10 +218,12 @@ def run_session(
             outcome.stopped = str(exc) or "stopped by Ctrl-C"
     outcome.total = len(recorder.rows)
     session = {
-        "waypoints": len(moves),
+        "waypoints": len(moves) if isinstance(moves, list) else None,
         "skipped_waypoints": [{"index": i, "reason": r} for i, r in outcome.skipped],
         "stopped": outcome.stopped,
     }
+    if not isinstance(moves, list):
+        session |= moves.record()
     recorder.finish("interrupted" if outcome.stopped else "complete", {"session": session})
     if live is not None:
         live.save(recorder.root)
