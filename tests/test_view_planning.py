@@ -111,6 +111,19 @@ def test_planning_stops_at_the_target() -> None:
     assert len(steps) < 40
 
 
+def test_the_views_already_taken_count_toward_the_next_choice_and_its_prediction() -> None:
+    """With recorded, a step's choice and prediction are those of the recorded views plus it."""
+    _, _, _, informations = _candidates(3)
+    recorded, offered = informations[:4].sum(axis=0), informations[4:]
+    steps = plan_views(offered, 2, "d-optimal", recorded=recorded)
+    without = plan_views(offered, 1, "d-optimal")
+    assert steps[0].candidate != without[0].candidate
+    mm, deg = predicted_sigmas(recorded + offered[steps[0].candidate])
+    assert (steps[0].sigma_translation_mm, steps[0].sigma_rotation_deg) == pytest.approx((mm, deg), rel=1e-12)
+    best_mm = min(predicted_sigmas(recorded + info)[0] for info in offered)
+    assert steps[0].sigma_translation_mm < 2 * best_mm
+
+
 def test_an_unknown_criterion_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown criterion 'a-optimal'"):
         plan_views(np.zeros((3, 12, 12)), 3, "a-optimal")

@@ -175,9 +175,11 @@ def plan_views(
     criterion: str = "d-optimal",
     target_sigma: tuple[float, float] | None = None,
     accept: Callable[[int], bool] | None = None,
+    recorded: np.ndarray | None = None,
 ) -> list[PlanStep]:
     """Candidates chosen greedily from (n, 12, 12) informations (view_informations), each at most
     once, up to max_views or until the predicted RSS 1-sigmas reach target_sigma (mm, deg).
+    recorded: (12, 12) information of the views already taken, added to the chosen ones'.
     The worst-direction criterion weighs translation and rotation by target_sigma (default
     0.15 mm and 0.015 deg). accept: asked of the best candidate before it is taken (a costly
     check, such as inverse kinematics, run only on the candidates that would be chosen); a
@@ -187,7 +189,7 @@ def plan_views(
     target_mm, target_deg = target_sigma if target_sigma is not None else (0.15, 0.015)
     units = np.r_[np.full(3, 1e-3 * target_mm), np.full(3, np.radians(target_deg))]
     n = len(informations)
-    total = np.zeros((12, 12))
+    total = np.zeros((12, 12)) if recorded is None else recorded.copy()
     weak = _weak_prior(12)
     free = np.ones(n, bool)
     steps: list[PlanStep] = []

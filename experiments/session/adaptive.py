@@ -260,8 +260,8 @@ class AdaptiveViews:
                 chosen.append(found)
             return found is not None
 
-        candidates = np.array([recorded + self._informations[k] for k in offered])
-        plan_views(candidates, 1, CRITERION, None, accept)
+        candidates = np.array([self._informations[k] for k in offered])
+        plan_views(candidates, 1, CRITERION, None, accept, recorded)
         return chosen[0] if chosen else None
 
     def _opening_order(self) -> list[int]:
