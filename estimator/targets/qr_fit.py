@@ -67,45 +67,49 @@ class MarkerFitError(ValueError):
 
 
 def homography_from_corners(corners_px: np.ndarray) -> np.ndarray:
-    """(3, 3) homography mapping symbol coordinates (a, b, 1) to pixels, H[2, 2] = 1.
+    """(..., 3, 3) homographies mapping symbol coordinates (a, b, 1) to pixels, H[2, 2] = 1.
 
-    corners_px: (4, 2) image corners in the marker's order. Solved in float64.
+    corners_px: (..., 4, 2) image corners in the marker's order. Solved in float64.
     """
-    corners_px = np.asarray(corners_px, dtype=np.float64)
-    A = _HOMOGRAPHY_ROWS.copy()
-    A[:, 6:] = -_HOMOGRAPHY_AB * corners_px.reshape(8, 1)
-    return np.append(np.linalg.solve(A, corners_px.ravel()), 1.0).reshape(3, 3)
+    flat = np.asarray(corners_px, dtype=np.float64).reshape(*np.shape(corners_px)[:-2], 8)
+    A = np.broadcast_to(_HOMOGRAPHY_ROWS, flat.shape[:-1] + (8, 8)).copy()
+    A[..., 6:] = -_HOMOGRAPHY_AB * flat[..., None]
+    h = np.linalg.solve(A, flat[..., None])[..., 0]
+    return np.concatenate([h, np.ones(flat.shape[:-1] + (1,))], axis=-1).reshape(*flat.shape[:-1], 3, 3)
 
 
 def apply_homography(H: np.ndarray, ab: np.ndarray) -> np.ndarray:
-    """(N, 2) image points of (N, 2) symbol coordinates under H."""
-    uvw = ab @ H[:, :2].T + H[:, 2]
-    return uvw[:, :2] / uvw[:, 2:3]
+    """(..., N, 2) image points of (N, 2) symbol coordinates under H (..., 3, 3)."""
+    uvw = ab @ np.swapaxes(H[..., :, :2], -1, -2) + H[..., None, :, 2]
+    return uvw[..., :2] / uvw[..., 2:3]
 
 
 def _point_jacobian_wrt_h(H: np.ndarray, ab: np.ndarray) -> np.ndarray:
-    """(N, 2, 8) derivative of the image points of ab with respect to h = H.flat[:8]."""
-    a, b = ab[:, 0], ab[:, 1]
-    d = H[2, 0] * a + H[2, 1] * b + 1.0
+    """(..., N, 2, 8) derivative of the image points of ab (N, 2) with respect to h = H.flat[:8]
+    for homographies H (..., 3, 3)."""
     uv = apply_homography(H, ab)
-    u, v = uv[:, 0], uv[:, 1]
-    zero, one = np.zeros_like(a), np.ones_like(a)
-    du = np.stack([a, b, one, zero, zero, zero, -a * u, -b * u], axis=1) / d[:, None]
-    dv = np.stack([zero, zero, zero, a, b, one, -a * v, -b * v], axis=1) / d[:, None]
-    return np.stack([du, dv], axis=1)
+    u, v = uv[..., 0], uv[..., 1]
+    a, b = np.broadcast_to(ab[:, 0], u.shape), np.broadcast_to(ab[:, 1], u.shape)
+    d = H[..., 2, 0, None] * a + H[..., 2, 1, None] * b + 1.0
+    zero, one = np.zeros_like(u), np.ones_like(u)
+    du = np.stack([a, b, one, zero, zero, zero, -a * u, -b * u], axis=-1) / d[..., None]
+    dv = np.stack([zero, zero, zero, a, b, one, -a * v, -b * v], axis=-1) / d[..., None]
+    return np.stack([du, dv], axis=-2)
 
 
 def point_jacobian_wrt_corners(corners_px: np.ndarray, ab: np.ndarray) -> np.ndarray:
-    """(N, 2, 8) derivative of the image points of symbol coordinates ab (N, 2) with respect
-    to the corners (u0, v0, u1, v1, ..., v3) that define the homography."""
+    """(..., N, 2, 8) derivative of the image points of symbol coordinates ab (N, 2) with respect
+    to the corners (u0, v0, u1, v1, ..., v3) of (..., 4, 2) that define the homography."""
     H = homography_from_corners(corners_px)
-    dcorners_dh = _point_jacobian_wrt_h(H, UNIT_SQUARE).reshape(8, 8)
-    return _point_jacobian_wrt_h(H, np.asarray(ab, dtype=np.float64)) @ np.linalg.inv(dcorners_dh)
+    dcorners_dh = _point_jacobian_wrt_h(H, UNIT_SQUARE).reshape(*H.shape[:-2], 8, 8)
+    dh_dcorners = np.linalg.inv(dcorners_dh)[..., None, :, :]
+    return _point_jacobian_wrt_h(H, np.asarray(ab, dtype=np.float64)) @ dh_dcorners
 
 
 def center_from_corners(corners_px: np.ndarray) -> np.ndarray:
-    """(2,) image of the symbol centre: where the diagonals cross (exact under perspective)."""
-    return apply_homography(homography_from_corners(corners_px), np.array([[0.5, 0.5]]))[0]
+    """(..., 2) image of the symbol centre of (..., 4, 2) corners: where the diagonals cross (exact
+    under perspective)."""
+    return apply_homography(homography_from_corners(corners_px), np.array([[0.5, 0.5]]))[..., 0, :]
 
 
 def _bilinear(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
