@@ -146,16 +146,36 @@ def camera_points(
     of the surface there. Returns points (5, 3) and their covariances (5, 3, 3).
     """
     uv = np.vstack([marker.center_px, marker.corners_px])
-    rays, d_ray_d_uv = pixel_rays(uv, intrinsics)
+    return back_projected_points(uv, _pixel_covariances(marker), z, np.diag(z_cov), slope, intrinsics)
+
+
+def _pixel_covariances(marker: MarkerDetection) -> np.ndarray:
+    """(5, 2, 2) covariances of the marker's centre and corners 0..3, pixels^2."""
     uv_cov = np.zeros((5, 2, 2))
     uv_cov[0] = marker.center_cov
     for k in range(4):
         uv_cov[k + 1] = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
-    d_p_d_uv = z[:, None, None] * d_ray_d_uv + rays[:, :, None] * slope[:, None, :]
-    points_cov = d_p_d_uv @ uv_cov @ d_p_d_uv.transpose(0, 2, 1) + np.diag(z_cov)[:, None, None] * (
-        rays[:, :, None] * rays[:, None, :]
+    return uv_cov
+
+
+def back_projected_points(
+    uv: np.ndarray,
+    uv_cov: np.ndarray,
+    z: np.ndarray,
+    z_var: np.ndarray,
+    slope: np.ndarray,
+    intrinsics: CameraIntrinsics,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points (..., 3) and their covariances (..., 3, 3) of pixels uv (..., 2) with
+    covariances uv_cov (..., 2, 2), depths z (...,) of variances z_var (...,), metres, independent
+    of the pixels, on a surface of slope dz/d(u, v) (..., 2) there."""
+    rays, d_ray_d_uv = pixel_rays(uv, intrinsics)
+    rays, d_ray_d_uv = rays.reshape(*z.shape, 3), d_ray_d_uv.reshape(*z.shape, 3, 2)
+    d_p_d_uv = z[..., None, None] * d_ray_d_uv + rays[..., :, None] * slope[..., None, :]
+    points_cov = d_p_d_uv @ uv_cov @ np.swapaxes(d_p_d_uv, -1, -2) + z_var[..., None, None] * (
+        rays[..., :, None] * rays[..., None, :]
     )
-    return rays * z[:, None], points_cov
+    return rays * z[..., None], points_cov
 
 
 def with_pixel_floor(

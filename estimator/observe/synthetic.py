@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, distort
+from estimator.geometry.camera import CameraIntrinsics, project
 from estimator.geometry.lie import pose_plus
 from estimator.geometry.marker_fit_bias import marker_fit_bias
 from estimator.geometry.transforms import invert, transform_points
 from estimator.observe.depth import DepthNoiseModel
-from estimator.observe.observations import FrameObservations, MarkerObservation, camera_points
+from estimator.observe.observations import FrameObservations, MarkerObservation, back_projected_points
 from estimator.solve.problem import RobotPoseNoise
 from estimator.targets.board import BoardDefinition
 from estimator.targets.qr_fit import center_from_corners, point_jacobian_wrt_corners
@@ -35,13 +35,6 @@ class SyntheticNoise:
     robot: RobotPoseNoise = field(default_factory=RobotPoseNoise)
 
 
-def project(T_cam_base: np.ndarray, p_base: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
-    """(N, 3) base-frame points -> (N, 2) pixels with the intrinsics' distortion."""
-    p_cam = transform_points(T_cam_base, p_base)
-    xy = distort(p_cam[:, :2] / p_cam[:, 2:3], intrinsics.dist)
-    return xy * [intrinsics.fx, intrinsics.fy] + [intrinsics.cx, intrinsics.cy]
-
-
 def synthetic_observations(
     board: BoardDefinition,
     intrinsics: CameraIntrinsics,
@@ -55,36 +48,44 @@ def synthetic_observations(
 ) -> list[FrameObservations]:
     """One FrameObservations per true flange pose, holding the markers fully in view.
 
-    exact: add no noise, but still report the covariances of ``noise``.
+    exact: add no noise, but still report the covariances of ``noise``. Noise is drawn frame by
+    frame: the flange pose's, then each kept marker's corners' and its depths'.
     """
-    sigma_uv = noise.corner_sigma_px
-    observations = []
-    for i, T_base_flange in enumerate(T_base_flange_true):
-        T_cam_base = invert(T_base_flange @ T_flange_cam)
-        reported = T_base_flange if exact else pose_plus(T_base_flange, _robot_delta(noise.robot, rng))
-        obs = FrameObservations(i, float(i), reported)
-        for marker_id in board.marker_ids:
-            corners_base = transform_points(T_base_board, board.marker_corners(marker_id))
-            corners_cam = transform_points(T_cam_base, corners_base)
-            z_true = corners_cam[:, 2]
-            if np.any(z_true <= 0):
-                continue
-            corners = project(T_cam_base, corners_base, intrinsics)
-            if any(intrinsics.dist):
-                corners = corners + marker_fit_bias(corners_cam[None], intrinsics)[0][0]
-            inside = (corners >= margin_px) & (
-                corners <= [intrinsics.width - 1 - margin_px, intrinsics.height - 1 - margin_px]
-            )
-            if not inside.all():
-                continue
-            if not exact:
-                corners = corners + sigma_uv * rng.standard_normal((4, 2))
-            obs.markers.append(
-                _marker(
-                    marker_id, corners, z_true, T_cam_base, T_base_board, board, intrinsics, noise, rng, exact
-                )
-            )
-        observations.append(obs)
+    ids = list(board.marker_ids)
+    corners_board = np.array([board.marker_corners(m) for m in ids])  # (M, 4, 3)
+    corners_base = transform_points(T_base_board, corners_board.reshape(-1, 3))
+    centers_base = transform_points(T_base_board, np.array([board.marker_center(m) for m in ids]))
+    limits = np.array([intrinsics.width - 1 - margin_px, intrinsics.height - 1 - margin_px])
+    T_cam_base = [invert(T_base_flange @ T_flange_cam) for T_base_flange in T_base_flange_true]
+    # Every frame's markers at once: camera-frame corners (F, M, 4, 3), the ones wholly in front.
+    corners_cam = np.array([transform_points(T, corners_base) for T in T_cam_base]).reshape(
+        -1, len(ids), 4, 3
+    )
+    frame_of, marker_of = np.nonzero(np.all(corners_cam[..., 2] > 0, axis=-1))
+    in_front = corners_cam[frame_of, marker_of]  # (K, 4, 3)
+    corners = project(np.eye(4), in_front.reshape(-1, 3), intrinsics).reshape(-1, 4, 2)
+    if any(intrinsics.dist) and len(in_front):
+        corners = corners + marker_fit_bias(in_front, intrinsics).reshape(-1, 4, 2)
+    inside = np.all((corners >= margin_px) & (corners <= limits), axis=(1, 2))
+    frame_of, marker_of, corners = frame_of[inside], marker_of[inside], corners[inside]
+    z_centers = np.array([transform_points(T, centers_base)[:, 2] for T in T_cam_base]).reshape(-1, len(ids))
+    z_true = np.column_stack([z_centers[frame_of, marker_of], corners_cam[frame_of, marker_of, :, 2]])
+    observations = [
+        FrameObservations(i, float(i), T_base_flange) for i, T_base_flange in enumerate(T_base_flange_true)
+    ]
+    corner_noise, depth_noise = np.zeros((len(frame_of), 4, 2)), np.zeros((len(frame_of), 5))
+    if not exact:
+        first = np.searchsorted(frame_of, np.arange(len(observations) + 1))
+        for i, obs in enumerate(observations):
+            obs.T_base_flange = pose_plus(obs.T_base_flange, _robot_delta(noise.robot, rng))
+            for k in range(first[i], first[i + 1]):
+                corner_noise[k] = rng.standard_normal((4, 2))
+                depth_noise[k] = rng.standard_normal(5)
+    markers = _markers(
+        [ids[m] for m in marker_of], corners, z_true, corner_noise, depth_noise, intrinsics, noise
+    )
+    for f, marker in zip(frame_of, markers, strict=True):
+        observations[f].markers.append(marker)
     return observations
 
 
@@ -94,39 +95,46 @@ def _robot_delta(robot: RobotPoseNoise, rng: np.random.Generator) -> np.ndarray:
     )
 
 
-def _marker(
-    marker_id: int,
+def _markers(
+    marker_ids: list[int],
     corners: np.ndarray,
-    z_corners: np.ndarray,
-    T_cam_base: np.ndarray,
-    T_base_board: np.ndarray,
-    board: BoardDefinition,
+    z_true: np.ndarray,
+    corner_noise: np.ndarray,
+    depth_noise: np.ndarray,
     intrinsics: CameraIntrinsics,
     noise: SyntheticNoise,
-    rng: np.random.Generator,
-    exact: bool,
-) -> MarkerObservation:
-    center_true = transform_points(T_cam_base @ T_base_board, board.marker_center(marker_id)[None])[0, 2]
-    z_true = np.concatenate([[center_true], z_corners])
+) -> list[MarkerObservation]:
+    """The observations of K markers from their detected corners' truth (K, 4, 2), the true depths
+    of their centres and corners (K, 5) and standard normal draws of each (K, 4, 2), (K, 5)."""
     z_sigma = noise.depth.sigma(z_true)
-    z = z_true if exact else z_true + z_sigma * rng.standard_normal(5)
+    corners = corners + noise.corner_sigma_px * corner_noise
+    z = z_true + z_sigma * depth_noise
     corners_cov = noise.corner_sigma_px**2 * np.eye(8)
-    J_center = point_jacobian_wrt_corners(corners, np.array([[0.5, 0.5]]))[0]
-    detection = dict(
-        marker_id=marker_id,
-        corners_px=corners,
-        corners_cov=corners_cov,
-        center_px=center_from_corners(corners),
-        center_cov=J_center @ corners_cov @ J_center.T,
-        quality=1.0,
-        module_agreement=1.0,
-        noise_sigma=0.0,
-        found_by="synthetic",
-        raw_corners_px=corners,
-    )
-    marker = MarkerObservation(**detection)
-    depth_cov = np.diag(z_sigma**2)
-    points, points_cov = camera_points(marker, z, depth_cov, np.zeros((5, 2)), intrinsics)
-    return MarkerObservation(
-        **detection, depth_m=z, depth_cov=depth_cov, points_cam=points, points_cov=points_cov
-    )
+    J_center = point_jacobian_wrt_corners(corners, np.array([[0.5, 0.5]]))[:, 0]  # (K, 2, 8)
+    centers_px = center_from_corners(corners)
+    centers_cov = J_center @ corners_cov @ np.swapaxes(J_center, -1, -2)
+    uv = np.concatenate([centers_px[:, None], corners], axis=1)
+    uv_cov = np.zeros((len(marker_ids), 5, 2, 2))
+    uv_cov[:, 0] = centers_cov
+    uv_cov[:, 1:] = noise.corner_sigma_px**2 * np.eye(2)
+    points, points_cov = back_projected_points(uv, uv_cov, z, z_sigma**2, np.zeros((*z.shape, 2)), intrinsics)
+    depth_cov = z_sigma[:, :, None] * z_sigma[:, None, :] * np.eye(5)
+    return [
+        MarkerObservation(
+            marker_id=marker_id,
+            corners_px=corners[k],
+            corners_cov=corners_cov.copy(),
+            center_px=centers_px[k],
+            center_cov=centers_cov[k],
+            quality=1.0,
+            module_agreement=1.0,
+            noise_sigma=0.0,
+            found_by="synthetic",
+            raw_corners_px=corners[k],
+            depth_m=z[k],
+            depth_cov=depth_cov[k],
+            points_cam=points[k],
+            points_cov=points_cov[k],
+        )
+        for k, marker_id in enumerate(marker_ids)
+    ]
