@@ -26,7 +26,7 @@ import numpy as np
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.kinematics import ROBOTS, URKinematics
 from estimator.io.dataset import Dataset, DatasetError
-from estimator.observe.observations import FrameObservations
+from estimator.observe.observations import FrameObservations, MarkerObservation
 from estimator.targets.board import BoardDefinition
 
 MIN_FRAMES = 3
@@ -165,16 +165,45 @@ class CalibrationProblem:
         return self.marker_ids.index(marker_id)
 
 
-def whitening_matrix(cov: np.ndarray, what: str) -> np.ndarray:
-    """(m, n) W with W @ cov @ W.T = I_m over the non-null space of a (n, n) covariance."""
-    if not np.all(np.isfinite(cov)):
-        raise CalibrationInputError(f"{what}: covariance has NaN or infinite entries")
-    sym = 0.5 * (cov + cov.T)
-    values, vectors = np.linalg.eigh(sym)
-    if values[-1] <= 0.0 or values[0] < -1e-6 * values[-1]:
-        raise CalibrationInputError(f"{what}: covariance is not positive semi-definite")
-    keep = values > NULL_EIGENVALUE_FRACTION * values[-1]
-    return (vectors[:, keep] / np.sqrt(values[keep])).T
+def whitening_matrices(covariances: list[np.ndarray], whats: list[str]) -> list[np.ndarray]:
+    """(m_i, n) W_i with W_i @ cov_i @ W_i.T = I over the non-null space of each (n, n) covariance
+    (the ones of one size decomposed together); whats: what each is, for the errors."""
+    whitenings: list[np.ndarray | None] = [None] * len(covariances)
+    by_size: dict[tuple, list[int]] = {}
+    for i, cov in enumerate(covariances):
+        if cov.ndim != 2 or cov.shape[0] != cov.shape[1]:
+            raise CalibrationInputError(f"{whats[i]}: covariance must be square, got shape {cov.shape}")
+        by_size.setdefault(cov.shape, []).append(i)
+    for shape, indices in by_size.items():
+        covs = np.array([covariances[i] for i in indices])
+        finite = np.isfinite(covs).all(axis=(1, 2))
+        if not finite.all():
+            raise CalibrationInputError(
+                f"{whats[indices[np.argmin(finite)]]}: covariance has NaN or infinite entries"
+            )
+        sym = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+        diagonals = np.diagonal(sym, axis1=1, axis2=2)
+        if np.count_nonzero(sym) == np.count_nonzero(diagonals):
+            # Diagonal: eigh's rows (up to the order of equal variances) without LAPACK.
+            order = np.argsort(diagonals, axis=1, kind="stable")
+            values = np.take_along_axis(diagonals, order, axis=1)
+            vectors = np.swapaxes(np.eye(shape[0])[order], 1, 2)
+        else:
+            values, vectors = np.linalg.eigh(sym)
+        bad = (values[:, -1] <= 0.0) | (values[:, 0] < -1e-6 * values[:, -1])
+        if bad.any():
+            raise CalibrationInputError(
+                f"{whats[indices[np.argmax(bad)]]}: covariance is not positive semi-definite"
+            )
+        keep = values > NULL_EIGENVALUE_FRACTION * values[:, -1:]
+        if keep.all():
+            full = np.swapaxes(vectors / np.sqrt(values)[:, None, :], 1, 2)
+            for i, W in zip(indices, full, strict=True):
+                whitenings[i] = W
+        else:
+            for i, V, v, k in zip(indices, vectors, values, keep, strict=True):
+                whitenings[i] = (V[:, k] / np.sqrt(v[k])).T
+    return whitenings
 
 
 def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
@@ -212,19 +241,19 @@ def build_problem(
             f"the board definition '{board.name}' does not match the observations: marker IDs "
             f"{foreign} were observed but the board has IDs {sorted(board_ids)}"
         )
-    frames, rejected = [], []
+    usable, rejected = [], []
     for obs in observations:
         if obs.problem is not None or not obs.markers:
             rejected.append(f"frame {obs.frame}: {obs.problem or 'no marker observed'}")
             continue
-        T = _check_pose(obs.T_base_flange, f"frame {obs.frame} T_base_flange")
-        markers = [_marker(obs.frame, m, board, use_depth) for m in obs.markers]
-        frames.append(FrameMeasurements(obs.frame, T, markers))
-    if len(frames) < MIN_FRAMES:
+        usable.append((obs, _check_pose(obs.T_base_flange, f"frame {obs.frame} T_base_flange")))
+    if len(usable) < MIN_FRAMES:
         raise CalibrationInputError(
-            f"too few frames: {len(frames)} usable of {len(observations)}, need at least {MIN_FRAMES}"
+            f"too few frames: {len(usable)} usable of {len(observations)}, need at least {MIN_FRAMES}"
             + (f" ({'; '.join(rejected[:3])})" if rejected else "")
         )
+    markers = iter(_markers([(obs.frame, m) for obs, _ in usable for m in obs.markers], board, use_depth))
+    frames = [FrameMeasurements(obs.frame, T, [next(markers) for _ in obs.markers]) for obs, T in usable]
     marker_ids = sorted({m.marker_id for f in frames for m in f.markers})
     kinematics = None
     if arm is not None:
@@ -243,18 +272,43 @@ def build_problem(
     )
 
 
-def _marker(frame: int, m, board: BoardDefinition, use_depth: bool) -> MarkerMeasurement:
-    what = f"frame {frame} marker {m.marker_id}"
-    corners = np.asarray(m.corners_px, dtype=np.float64)
-    if corners.shape != (4, 2) or not np.all(np.isfinite(corners)):
-        raise CalibrationInputError(f"{what}: corners_px must be (4, 2) finite pixels")
-    W = whitening_matrix(np.asarray(m.corners_cov, dtype=np.float64), what)
-    pixel_rows = len(W)
-    depth = None
-    if use_depth and m.depth_m is not None:
-        depth = np.asarray(m.depth_m, dtype=np.float64)[1:5]
-        if not np.all(np.isfinite(depth)) or np.any(depth <= 0):
-            raise CalibrationInputError(f"{what}: depth_m must be finite and positive")
-        W_depth = whitening_matrix(np.asarray(m.depth_cov, dtype=np.float64)[1:5, 1:5], f"{what} depth")
-        W = np.block([[W, np.zeros((pixel_rows, 4))], [np.zeros((len(W_depth), 8)), W_depth]])
-    return MarkerMeasurement(m.marker_id, board.marker_corners(m.marker_id), corners, depth, W, pixel_rows)
+def _markers(
+    observed: list[tuple[int, MarkerObservation]], board: BoardDefinition, use_depth: bool
+) -> list[MarkerMeasurement]:
+    """The measurements of (frame, MarkerObservation) pairs, validated, with their whitenings."""
+    whats = [f"frame {frame} marker {m.marker_id}" for frame, m in observed]
+    corners = [np.asarray(m.corners_px, dtype=np.float64) for _, m in observed]
+    for what, c in zip(whats, corners, strict=True):
+        if c.shape != (4, 2):
+            raise CalibrationInputError(f"{what}: corners_px must be (4, 2) finite pixels")
+    finite = np.isfinite(np.array(corners).reshape(len(corners), 8)).all(axis=1)
+    if not finite.all():
+        raise CalibrationInputError(f"{whats[np.argmin(finite)]}: corners_px must be (4, 2) finite pixels")
+    W_pixels = whitening_matrices([np.asarray(m.corners_cov, dtype=np.float64) for _, m in observed], whats)
+    with_depth = [i for i, (_, m) in enumerate(observed) if use_depth and m.depth_m is not None]
+    depths = [np.asarray(observed[i][1].depth_m, dtype=np.float64) for i in with_depth]
+    for i, z in zip(with_depth, depths, strict=True):
+        if z.shape != (5,):
+            raise CalibrationInputError(f"{whats[i]}: depth_m must hold 5 depths (centre, corners 0..3)")
+    valid = np.array([np.isfinite(z[1:5]).all() and (z[1:5] > 0).all() for z in depths], dtype=bool)
+    if not valid.all():
+        raise CalibrationInputError(
+            f"{whats[with_depth[np.argmin(valid)]]}: depth_m must be finite and positive"
+        )
+    W_depths = whitening_matrices(
+        [np.asarray(observed[i][1].depth_cov, dtype=np.float64)[1:5, 1:5] for i in with_depth],
+        [f"{whats[i]} depth" for i in with_depth],
+    )
+    depth_of = dict(zip(with_depth, zip(depths, W_depths, strict=True), strict=True))
+    corners_board = {marker_id: board.marker_corners(marker_id) for marker_id in board.marker_ids}
+    measurements = []
+    for i, (_, m) in enumerate(observed):
+        W, depth = W_pixels[i], None
+        if i in depth_of:
+            z, W_depth = depth_of[i]
+            depth, W = z[1:5], np.zeros((len(W_pixels[i]) + len(W_depth), 12))
+            W[: len(W_pixels[i]), :8], W[len(W_pixels[i]) :, 8:] = W_pixels[i], W_depth
+        measurements.append(
+            MarkerMeasurement(m.marker_id, corners_board[m.marker_id], corners[i], depth, W, len(W_pixels[i]))
+        )
+    return measurements
