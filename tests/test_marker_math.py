@@ -49,6 +49,17 @@ def test_point_jacobian_wrt_corners_matches_finite_differences() -> None:
     np.testing.assert_allclose(point_jacobian_wrt_corners(CORNERS, ab), numeric, atol=1e-6)
 
 
+def test_a_batch_of_markers_gives_each_marker_its_own_answer() -> None:
+    corners = CORNERS + np.random.default_rng(0).normal(0.0, 5.0, (6, 4, 2))
+    ab = np.array([[0.5, 0.5], [0.1, 0.8]])
+    for batch, single in (
+        (homography_from_corners(corners), [homography_from_corners(c) for c in corners]),
+        (point_jacobian_wrt_corners(corners, ab), [point_jacobian_wrt_corners(c, ab) for c in corners]),
+        (center_from_corners(corners), [center_from_corners(c) for c in corners]),
+    ):
+        np.testing.assert_allclose(batch, np.array(single), rtol=1e-12, atol=1e-12)
+
+
 def test_distortion_jacobian_matches_finite_differences() -> None:
     xy = np.array([[0.31, -0.22], [-0.4, 0.35], [0.0, 0.0]])
     _, analytic = distort_normalized(xy, DISTORTED.dist)
