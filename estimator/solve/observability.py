@@ -59,8 +59,10 @@ def frame_information(
     Js = pred.J_state
     if problem.robot_noise.is_zero:
         return Js.T @ Js
-    S = np.eye(len(Js)) + pred.J_flange @ problem.robot_noise.covariance() @ pred.J_flange.T
-    return Js.T @ np.linalg.solve(S, Js)
+    # Js^T (I + Jf Sigma Jf^T)^-1 Js through the push-through identity: a 6x6 solve, not rows x rows.
+    Jf, Sigma = pred.J_flange, problem.robot_noise.covariance()
+    B = Js.T @ Jf
+    return Js.T @ Js - B @ np.linalg.solve(np.eye(6) + Sigma @ (Jf.T @ Jf), Sigma @ B.T)
 
 
 def state_information(problem: CalibrationProblem, state: HandEyeState) -> np.ndarray:
