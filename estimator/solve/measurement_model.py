@@ -28,7 +28,7 @@ from estimator.geometry.marker_fit_bias import (
     marker_fit_bias,
     marker_fit_bias_jacobians,
 )
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from estimator.solve.problem import CalibrationProblem, FrameMeasurements, StackedMeasurements
 
 
 @dataclass(frozen=True)
@@ -162,13 +162,9 @@ def predict_frame(
     tilt = problem.depth_tilt
     depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1] + p_cam[:, :2] @ tilt)
 
-    residual_parts = []
-    for k, m in enumerate(markers):
-        predicted = pixels[4 * k : 4 * k + 4].reshape(-1)
-        if m.depth_m is not None:
-            predicted = np.concatenate([predicted, depth[4 * k : 4 * k + 4]])
-        residual_parts.append(m.whitening @ (m.measured - predicted))
-    residual = np.concatenate(residual_parts)
+    stacked = frame.stacked
+    predicted = np.concatenate([pixels.reshape(-1, 8), depth.reshape(-1, 4)], axis=1).reshape(-1)
+    residual = stacked.whitening @ (stacked.measured - predicted[stacked.rows])
     if not jacobians:
         return FramePrediction(residual, np.empty((0, 0)), np.empty((0, 0)), pixels, depth, p_cam)
 
@@ -201,25 +197,15 @@ def predict_frame(
         J_state_points[:, 2, -1] = gain * p_cam[:, 2]
     J_flange_points = _through_camera_points(d_meas_d_cam, d_cam_d_F, d_bias_d_cam)
 
-    J_state_rows, J_flange_rows = [], []
-    for k, m in enumerate(markers):
-        sl = slice(4 * k, 4 * k + 4)
-        rows_state = [J_state_points[sl, :2].reshape(8, n)]
-        rows_flange = [J_flange_points[sl, :2].reshape(8, 6)]
-        if m.depth_m is not None:
-            rows_state.append(J_state_points[sl, 2])
-            rows_flange.append(J_flange_points[sl, 2])
-        J_state_rows.append(m.whitening @ np.concatenate(rows_state))
-        J_flange_rows.append(m.whitening @ np.concatenate(rows_flange))
     J_camera = J_shift = None
     if camera_jacobian:
         J_camera, J_shift = _camera_jacobian(
-            problem, state, markers, xy, xy_d, fit, d_bias_d_cam, d_meas_d_cam, RXt_RFt, depth, p_cam
+            problem, state, frame, xy, xy_d, fit, d_bias_d_cam, d_meas_d_cam, RXt_RFt, depth, p_cam
         )
     return FramePrediction(
         residual,
-        np.concatenate(J_state_rows),
-        np.concatenate(J_flange_rows),
+        _whitened_rows(stacked, J_state_points),
+        _whitened_rows(stacked, J_flange_points),
         pixels,
         depth,
         p_cam,
@@ -250,7 +236,7 @@ def _through_camera_points(
 def _camera_jacobian(
     problem: CalibrationProblem,
     state: HandEyeState,
-    markers: list,
+    frame: FrameMeasurements,
     xy: np.ndarray,
     xy_d: np.ndarray,
     fit: MarkerFitBiasJacobians,
@@ -277,7 +263,7 @@ def _camera_jacobian(
     J[:, :2, 5] = xy * (r2 * r2)[:, None] * f
     J[:, :2, [0, 1, 4, 5]] += fit.d_camera.reshape(P, 2, 4)
     if state.T_base_board is not None:  # landmarks have no board to scale
-        corners_board = np.concatenate([m.corners_board for m in markers])
+        corners_board = np.concatenate([m.corners_board for m in frame.markers])
         R_B = state.T_base_board[:3, :3]
         shapes = _bend_shapes(problem, corners_board)
         normal = R_B[:, 2]
@@ -297,10 +283,13 @@ def _camera_jacobian(
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
-    rows = []
-    for i, m in enumerate(markers):
-        sl = slice(4 * i, 4 * i + 4)
-        block = [J[sl, :2].reshape(8, 16)] + ([J[sl, 2]] if m.depth_m is not None else [])
-        rows.append(m.whitening @ np.concatenate(block))
-    whitened = np.concatenate(rows)
+    whitened = _whitened_rows(frame.stacked, J)
     return whitened[:, :14], whitened[:, 14:]
+
+
+def _whitened_rows(stacked: StackedMeasurements, J_points: np.ndarray) -> np.ndarray:
+    """(R, n) whitened measurement rows of the frame's derivatives per point (P, 3, n): (u, v, depth)
+    of each marker's 4 corners, the markers in order."""
+    K, n = len(J_points) // 4, J_points.shape[-1]
+    per_marker = np.concatenate([J_points[:, :2].reshape(K, 8, n), J_points[:, 2].reshape(K, 4, n)], axis=1)
+    return stacked.whitening @ per_marker.reshape(12 * K, n)[stacked.rows]

@@ -19,6 +19,7 @@ same from view to view, not white).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -129,6 +130,31 @@ class FrameMeasurements:
     T_base_flange: np.ndarray
     markers: list[MarkerMeasurement]
     joints: np.ndarray | None = None
+
+    @functools.cached_property
+    def stacked(self) -> StackedMeasurements:
+        """The frame's markers as one measurement (see StackedMeasurements)."""
+        rows = np.concatenate(
+            [12 * k + np.arange(8 if m.depth_m is None else 12) for k, m in enumerate(self.markers)]
+        )
+        whitening = np.zeros((sum(len(m.whitening) for m in self.markers), len(rows)))
+        row = column = 0
+        for m in self.markers:
+            height, width = m.whitening.shape
+            whitening[row : row + height, column : column + width] = m.whitening
+            row, column = row + height, column + width
+        return StackedMeasurements(rows, whitening, np.concatenate([m.measured for m in self.markers]))
+
+
+@dataclass(frozen=True)
+class StackedMeasurements:
+    """A frame's K markers as one measurement. rows: (r,) which entries of the per-marker layout
+    (12 K,: each marker's 8 corner pixels, then its 4 corner depths) are measured; whitening: (R, r)
+    the markers' whitenings block-diagonally; measured: (r,) the measured values."""
+
+    rows: np.ndarray
+    whitening: np.ndarray
+    measured: np.ndarray
 
 
 @dataclass
