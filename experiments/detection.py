@@ -60,19 +60,15 @@ def _write_overlay(
     write_png(out / f"{obs.frame:06d}.png", cv2.cvtColor(draw_overlay(rgb, obs), cv2.COLOR_RGB2BGR))
 
 
-def detect_and_cache(
+def detect_dataset(
     dataset: Dataset,
     settings: DetectorSettings,
     quiet: bool = False,
     on_frame: Callable[[FrameObservations, Frame | None], None] | None = None,
-    must_cache: bool = True,
-) -> tuple[list[FrameObservations], Path | None, CornerNoise | None]:
-    """Detect every frame with a progress bar (unless quiet), learn the corner noise floor
-    (settings.learn_corner_floor), write DATASET/detections.json. on_frame: called after each
-    frame. Returns the observations, the cache path and the corner noise (None when not
-    learned); without must_cache, a cache that cannot be written (a read-only dataset) is a
-    note and None."""
-    depth_noise = dataset_depth_noise(dataset)
+) -> tuple[list[FrameObservations], CornerNoise | None]:
+    """Detect every frame with a progress bar (unless quiet) and learn the corner noise floor
+    (settings.learn_corner_floor); nothing is written. on_frame: called after each frame. Returns
+    the observations and the corner noise (None when not learned)."""
     if "depth_noise" not in dataset.metadata:
         print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
     with tqdm(total=len(dataset), desc="detect", unit="frame", disable=quiet, file=sys.stderr) as bar:
@@ -82,13 +78,26 @@ def detect_and_cache(
                 on_frame(obs, frame)
             bar.update()
 
-        observations = observe_dataset(dataset, settings, depth_noise, progress=after_frame)
-    observations, noise = learn_corner_floor(observations, dataset.board, dataset.intrinsics, settings)
+        observations = observe_dataset(dataset, settings, dataset_depth_noise(dataset), progress=after_frame)
+    return learn_corner_floor(observations, dataset.board, dataset.intrinsics, settings)
+
+
+def detect_and_cache(
+    dataset: Dataset,
+    settings: DetectorSettings,
+    quiet: bool = False,
+    on_frame: Callable[[FrameObservations, Frame | None], None] | None = None,
+    must_cache: bool = True,
+) -> tuple[list[FrameObservations], Path | None, CornerNoise | None]:
+    """detect_dataset, then write DATASET/detections.json. Returns the observations, the cache path
+    and the corner noise (None when not learned); without must_cache, a cache that cannot be
+    written (a read-only dataset) is a note and None."""
+    observations, noise = detect_dataset(dataset, settings, quiet, on_frame)
     block = None if noise is None else noise.to_dict()
     try:
         return (
             observations,
-            save_observations(dataset.root, observations, settings, depth_noise, block),
+            save_observations(dataset.root, observations, settings, dataset_depth_noise(dataset), block),
             noise,
         )
     except OSError as exc:

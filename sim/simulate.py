@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,7 +17,8 @@ from estimator.geometry.waypoints import (
     read_waypoint_file,
     rotation_rich_waypoints,
 )
-from estimator.io.dataset import DatasetWriter
+from estimator.io.dataset import Dataset, DatasetWriter, Frame, GroundTruth
+from estimator.io.memory import dataset_in_memory
 from sim.cell import MIN_MODULE_PX, SimCell
 from sim.noise import depth_noise_model, robot_pose_noise_model, waypoint_rng
 from sim.preview import write_preview
@@ -66,6 +68,45 @@ def _warn_small_markers(module_px: list[float]) -> None:
         )
 
 
+def _captures(
+    cell: SimCell,
+    waypoints: list[Waypoint],
+    noise_seed: int,
+    truth: GroundTruth,
+    skipped: list[tuple[int, str]],
+    progress: bool,
+) -> Iterator[Frame]:
+    """Move to each waypoint and capture it with waypoint_rng(noise_seed, index): its frame, its
+    truth appended to truth. A waypoint the cell rejects is said on stderr and appended to skipped
+    (index, reason). Warns at the end when the markers were too small to decode."""
+    module_px: list[float] = []
+    for waypoint in tqdm(waypoints, desc="rendering", unit="view", disable=not progress, file=sys.stderr):
+        try:
+            cell.move_to(waypoint)
+        except WaypointRejected as rejected:
+            skipped.append((waypoint.index, rejected.reason))
+            tqdm.write(
+                f"waypoint {waypoint.index} ({waypoint.label}) skipped: {rejected.reason}", file=sys.stderr
+            )
+            continue
+        module_px.append(cell.smallest_module_px())
+        frame, frame_truth = cell.capture(waypoint_rng(noise_seed, waypoint.index))
+        truth.T_base_flange.append(frame_truth.T_base_flange)
+        truth.joints.append(frame_truth.joints)
+        yield frame
+    _warn_small_markers(module_px)
+
+
+def _simulation_extra(scenario: Scenario, seed: int, noise_seed: int, waypoints: int, skipped: list) -> dict:
+    """dataset.json fields of a simulation (simulation_metadata) with its waypoints and skips."""
+    extra = simulation_metadata(scenario, seed, noise_seed)
+    extra["simulation"] |= {
+        "waypoints": waypoints,
+        "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
+    }
+    return extra
+
+
 def simulate(
     scenario: Scenario,
     out_dir: str | Path,
@@ -86,13 +127,11 @@ def simulate(
     if Path(out_dir).exists() and not Path(out_dir).is_dir():  # --force replaces a dataset, not a file
         raise FileExistsError(f"{out_dir} is a file, not a dataset folder; it is not replaced")
     waypoints = scenario_waypoints(scenario)
-    rng = np.random.default_rng(seed)
     noise_seed = seed if noise_seed is None else noise_seed
-    cell = SimCell(scenario, rng)
+    cell = SimCell(scenario, np.random.default_rng(seed))
     truth = cell.ground_truth()
     skipped: list[tuple[int, str]] = []
     frame_rgb: list[np.ndarray] = []
-    module_px: list[float] = []
     try:
         with DatasetWriter(
             out_dir,
@@ -104,36 +143,38 @@ def simulate(
         ) as writer:
             for partial in writer.removed:
                 print(f"note: removed {partial}, left behind by a run that was killed", file=sys.stderr)
-            for waypoint in tqdm(
-                waypoints, desc="rendering", unit="view", disable=not progress, file=sys.stderr
-            ):
-                try:
-                    cell.move_to(waypoint)
-                except WaypointRejected as rejected:
-                    skipped.append((waypoint.index, rejected.reason))
-                    tqdm.write(
-                        f"waypoint {waypoint.index} ({waypoint.label}) skipped: {rejected.reason}",
-                        file=sys.stderr,
-                    )
-                    continue
-                frame, frame_truth = cell.capture(waypoint_rng(noise_seed, waypoint.index))
-                module_px.append(cell.smallest_module_px())
+            for frame in _captures(cell, waypoints, noise_seed, truth, skipped, progress):
                 writer.add_frame(frame)
-                truth.T_base_flange.append(frame_truth.T_base_flange)
-                truth.joints.append(frame_truth.joints)
                 frame_rgb.append(frame.rgb)
             if not frame_rgb:
                 raise SimulationError("no waypoint could be used; see the reasons above")
-            _warn_small_markers(module_px)
             preview_files = write_preview(cell, frame_rgb, writer.tmp_dir / "preview") if preview else []
-            extra = simulation_metadata(scenario, seed, noise_seed)
-            extra["simulation"] |= {
-                "waypoints": len(waypoints),
-                "skipped_waypoints": [{"index": i, "reason": r} for i, r in skipped],
-            }
+            extra = _simulation_extra(scenario, seed, noise_seed, len(waypoints), skipped)
             final = writer.finish(truth, extra)
     finally:
         cell.close()
     return SimulationResult(
         final, len(frame_rgb), skipped, [final / "preview" / p.name for p in preview_files]
     )
+
+
+def simulate_in_memory(
+    scenario: Scenario, seed: int, noise_seed: int | None = None, name: str = "simulation"
+) -> Dataset:
+    """What simulate(scenario, folder, seed, noise_seed=noise_seed) writes, as load_dataset would read
+    it back, without writing anything (estimator.io.memory); no progress bar or preview. Skipped
+    waypoints are said on stderr and listed as in a written dataset. name: what messages call it."""
+    waypoints = scenario_waypoints(scenario)
+    noise_seed = seed if noise_seed is None else noise_seed
+    cell = SimCell(scenario, np.random.default_rng(seed))
+    truth = cell.ground_truth()
+    skipped: list[tuple[int, str]] = []
+    try:
+        frames = list(_captures(cell, waypoints, noise_seed, truth, skipped, progress=False))
+    finally:
+        cell.close()
+    if not frames:
+        raise SimulationError("no waypoint could be used; see the reasons above")
+    extra = _simulation_extra(scenario, seed, noise_seed, len(waypoints), skipped)
+    depth_scale_m = scenario.noise.depth_quantisation.depth_scale_m
+    return dataset_in_memory(frames, cell.intrinsics, cell.board, depth_scale_m, "sim", truth, extra, name)

@@ -36,7 +36,7 @@ def _alive(pid: int) -> bool:
 
 
 def _start_render_sweep(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
-    """`hec sweep` of render trials on one worker, once the worker renders in its scratch folder."""
+    """`hec sweep` of render trials on one worker, once a trial renders (its scratch folder exists)."""
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     config = tmp_path / "render.toml"
@@ -51,7 +51,7 @@ def _start_render_sweep(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
         stderr=subprocess.PIPE,
     )
     end = time.monotonic() + 120
-    while not list(scratch.glob("hec-sweep-*/dataset*")):
+    while not list(scratch.glob("hec-sweep-*/waypoints.csv")):
         assert process.poll() is None, process.communicate()
         assert time.monotonic() < end, "no render trial started"
         time.sleep(0.02)

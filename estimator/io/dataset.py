@@ -176,7 +176,7 @@ class DatasetWriter:
         _dump_json(self.tmp_dir / "board.json", self.board.to_dict())
         if ground_truth is not None:
             _dump_json(self.tmp_dir / "ground_truth.json", _ground_truth_dict(ground_truth))
-        meta = _metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
+        meta = dataset_metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
         _dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
         if self.out_dir.exists():
             trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
@@ -314,7 +314,7 @@ class DatasetRecorder:
 
     def _write_metadata(self, state: str) -> None:
         truth = self.ground_truth if self.rows else None  # its file is written with the first frame
-        meta = _metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
+        meta = dataset_metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
         text = json.dumps(meta | self.extra | {"recording": state}, indent=2) + "\n"
         write_atomic(self.root / "dataset.json", text)
 
@@ -354,7 +354,7 @@ def _ground_truth_dict(truth: GroundTruth) -> dict:
     return data
 
 
-def _metadata(
+def dataset_metadata(
     intrinsics: CameraIntrinsics,
     depth_scale_m: float,
     source: str,
@@ -378,7 +378,8 @@ def _metadata(
 
 @dataclass
 class Dataset:
-    """A dataset opened for reading; images load on demand with ``frame(i)``."""
+    """A dataset opened for reading; images load on demand with ``frame(i)``, or come from
+    ``frames`` for one held in memory (estimator.io.memory; root then only names it)."""
 
     root: Path
     metadata: dict
@@ -387,11 +388,14 @@ class Dataset:
     depth_scale_m: float
     rows: list[dict]
     ground_truth: GroundTruth | None
+    frames: list[Frame] | None = None
 
     def __len__(self) -> int:
         return len(self.rows)
 
     def frame(self, i: int) -> Frame:
+        if self.frames is not None:
+            return self.frames[i]
         row = self.rows[i]
         rgb = _read_image(self.root / row["rgb"], cv2.IMREAD_COLOR)
         depth = _read_image(self.root / row["depth"], cv2.IMREAD_UNCHANGED)

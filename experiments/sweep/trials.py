@@ -200,6 +200,17 @@ def _measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator
     return observations, board, intrinsics, robot, None, X, T_base_board
 
 
+def _trial_scenario(scenario: Any, T_flange_cam: np.ndarray, waypoint_file: Path, name: str) -> Any:
+    """The scenario with the mount T_flange_cam (4, 4) and the trajectory of waypoint_file."""
+    data = scenario.to_dict()
+    data["mount"] = {
+        "translation_m": [float(v) for v in T_flange_cam[:3, 3]],
+        "rotation_rpy_deg": [float(v) for v in np.degrees(rpy_from_transform(T_flange_cam))],
+    }
+    data["trajectory"] = {**data["trajectory"], "kind": "file", "file": str(waypoint_file)}
+    return scenario_from_dict(data, f"trial {name}", Path(scenario.base_dir))
+
+
 def render_views(
     scenario: Any,
     T_flange_cam: np.ndarray,
@@ -211,13 +222,14 @@ def render_views(
     noise_seed: int | None = None,
 ) -> tuple[Dataset, list]:
     """Render the scenario's cell with the mount T_flange_cam (4, 4) at the T_base_flange (4, 4)
-    targets flange into a dataset at out (a temporary folder, removed again, when None) and detect
-    it: (the dataset, its observations). sim_seed draws the true cell, noise_seed (default sim_seed)
-    each frame's noise (sim.simulate.simulate); name: the trial, for messages and the scratch
-    folder's name; example: with previews and detection overlays."""
+    targets flange and detect it: (the dataset, its observations). The frames stay in memory
+    (estimator.io.memory) unless out names a folder to write the dataset into. sim_seed draws the
+    true cell, noise_seed (default sim_seed) each frame's noise (sim.simulate.simulate); name: the
+    trial, for messages and the scratch folder's name; example: with previews and detection
+    overlays (needs out)."""
     from estimator.targets.qr import DetectorSettings
-    from experiments.detection import detect_and_cache, overlay_writer
-    from sim.simulate import SimulationError, simulate
+    from experiments.detection import detect_and_cache, detect_dataset, overlay_writer
+    from sim.simulate import SimulationError, simulate, simulate_in_memory
 
     tmp = Path(tempfile.mkdtemp(prefix=f"hec-sweep-{name}-"))
     _TEMPORARY.add(tmp)
@@ -226,33 +238,32 @@ def render_views(
         write_waypoint_file(
             waypoint_file, [Waypoint(i, f"view {i}", T_base_flange=T) for i, T in enumerate(flange)]
         )
-        data = scenario.to_dict()
-        data["mount"] = {
-            "translation_m": [float(v) for v in T_flange_cam[:3, 3]],
-            "rotation_rpy_deg": [float(v) for v in np.degrees(rpy_from_transform(T_flange_cam))],
-        }
-        data["trajectory"] = {**data["trajectory"], "kind": "file", "file": str(waypoint_file)}
-        trial_scenario = scenario_from_dict(data, f"trial {name}", Path(scenario.base_dir))
-        out = tmp / "dataset" if out is None else out
+        trial_scenario = _trial_scenario(scenario, T_flange_cam, waypoint_file, name)
         try:
             with contextlib.redirect_stderr(io.StringIO()):  # skipped waypoints: the dataset lists them
-                result = simulate(
-                    trial_scenario,
-                    out,
-                    sim_seed,
-                    force=True,
-                    preview=example,
-                    progress=False,
-                    noise_seed=noise_seed,
-                )
+                if out is None:
+                    dataset = simulate_in_memory(trial_scenario, sim_seed, noise_seed, f"trial {name}")
+                else:
+                    result = simulate(
+                        trial_scenario,
+                        out,
+                        sim_seed,
+                        force=True,
+                        preview=example,
+                        progress=False,
+                        noise_seed=noise_seed,
+                    )
+                    dataset = load_dataset(result.out_dir)
         except (SimulationError, WaypointFileError) as exc:
             raise SweepError(f"simulation: {exc}") from None
-        dataset = load_dataset(result.out_dir)
-        on_frame = overlay_writer(dataset) if example else None
-        observations, _, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True, on_frame=on_frame)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         _TEMPORARY.discard(tmp)
+    if out is None:
+        observations, _ = detect_dataset(dataset, DetectorSettings(), quiet=True)
+    else:
+        on_frame = overlay_writer(dataset) if example else None
+        observations, _, _ = detect_and_cache(dataset, DetectorSettings(), quiet=True, on_frame=on_frame)
     return dataset, observations
 
 
