@@ -176,7 +176,7 @@ class DatasetWriter:
         _dump_json(self.tmp_dir / "board.json", self.board.to_dict())
         if ground_truth is not None:
             _dump_json(self.tmp_dir / "ground_truth.json", _ground_truth_dict(ground_truth))
-        meta = dataset_metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
+        meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
         _dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
         if self.out_dir.exists():
             trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
@@ -314,7 +314,7 @@ class DatasetRecorder:
 
     def _write_metadata(self, state: str) -> None:
         truth = self.ground_truth if self.rows else None  # its file is written with the first frame
-        meta = dataset_metadata(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
+        meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
         text = json.dumps(meta | self.extra | {"recording": state}, indent=2) + "\n"
         write_atomic(self.root / "dataset.json", text)
 
@@ -354,13 +354,14 @@ def _ground_truth_dict(truth: GroundTruth) -> dict:
     return data
 
 
-def dataset_metadata(
+def dataset_json(
     intrinsics: CameraIntrinsics,
     depth_scale_m: float,
     source: str,
     frame_count: int,
     ground_truth: GroundTruth | None,
 ) -> dict:
+    """The dataset.json fields every dataset has (DatasetWriter, DatasetRecorder, estimator.io.memory)."""
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -378,8 +379,7 @@ def dataset_metadata(
 
 @dataclass
 class Dataset:
-    """A dataset opened for reading; images load on demand with ``frame(i)``, or come from
-    ``frames`` for one held in memory (estimator.io.memory; root then only names it)."""
+    """A dataset opened for reading; ``frame(i)`` loads images on demand (held in memory: from frames)."""
 
     root: Path
     metadata: dict

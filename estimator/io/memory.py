@@ -11,7 +11,7 @@ from pathlib import Path
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
-from estimator.io.dataset import Dataset, Frame, GroundTruth, dataset_metadata
+from estimator.io.dataset import Dataset, Frame, GroundTruth, dataset_json
 from estimator.io.depth_png import decode_depth, encode_depth
 from estimator.targets.board import BoardDefinition
 
@@ -41,7 +41,7 @@ def dataset_in_memory(
     """The dataset DatasetWriter(...).finish(ground_truth, extra) would write from these frames, as
     load_dataset would read it, held in memory. name: what messages call it (its root)."""
     stored = [stored_frame(frame, depth_scale_m) for frame in frames]
-    meta = dataset_metadata(intrinsics, depth_scale_m, source, len(stored), ground_truth) | (extra or {})
+    meta = dataset_json(intrinsics, depth_scale_m, source, len(stored), ground_truth) | (extra or {})
     rows = [
         {
             "frame": i,
