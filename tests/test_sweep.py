@@ -62,18 +62,31 @@ def test_rows_follow_the_schema(small: tuple[Path, Path, list[dict]]) -> None:
     assert all(math.isnan(r["nees"]) and math.isnan(r["sigma_translation_mm"]) for r in park)
 
 
-def test_dask_cluster_gives_the_local_rows_bit_for_bit(
-    small: tuple[Path, Path, list[dict]], tmp_path: Path
+def test_dask_cluster_gives_the_local_rows_bit_for_bit_with_few_trials_in_flight(
+    small: tuple[Path, Path, list[dict]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from distributed import LocalCluster
 
+    from experiments.sweep import runner
+
     config, _, local = small
+    monkeypatch.setattr(runner, "DASK_TRIALS_IN_FLIGHT", 1)
+    monkeypatch.setattr(runner, "DASK_MIN_IN_FLIGHT", 3)
+    clients, held = [], []  # the sweep's client; the trials it holds whenever rows arrive
+    connect, format_rows = runner._dask_client, runner.format_rows
+    monkeypatch.setattr(
+        runner, "_dask_client", lambda address: clients.append(connect(address)) or clients[0]
+    )
+    monkeypatch.setattr(
+        runner, "format_rows", lambda *a: held.append(len(clients[0].futures)) or format_rows(*a)
+    )
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         outcome = run_sweep(
             load_config(config), tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False
         )
     assert outcome.computed == TRIALS and not outcome.lost
     assert same_rows(load_rows(tmp_path / "dask"), local) == []
+    assert len(held) == TRIALS and max(held) <= 3  # of 12: the rest waited to be submitted
 
 
 def test_resume_after_a_half_written_line_computes_only_the_missing_trials(

@@ -12,6 +12,7 @@ sets), which keeps the floating-point results identical wherever a trial runs.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import multiprocessing
 import os
@@ -53,6 +54,8 @@ from experiments.sweep.trials import TrialTask, one_line, remove_temporary_folde
 POOL_RESTARTS = 3
 PARENT_POLL_S = 0.5  # how often a worker checks that the sweep that started it still runs
 WORKER_EXIT_S = 10.0  # how long a stopped worker may take to remove its temporary folders
+# Dask: trials submitted ahead per worker thread, and in all at least (see _run_dask).
+DASK_TRIALS_IN_FLIGHT, DASK_MIN_IN_FLIGHT = 4, 8
 BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -238,23 +241,39 @@ def _dask_client(scheduler: str) -> Any:
 
 
 def _run_dask(tasks: list[TrialTask], client: Any, on_rows: Callable, on_error: Callable) -> None:
-    """Run on the client's cluster (its workers retry a trial whose worker died; then it is lost)."""
+    """Run on the client's cluster (its workers retry a trial whose worker died; then it is lost).
+    At most DASK_TRIALS_IN_FLIGHT trials per worker thread (at least DASK_MIN_IN_FLIGHT in all) are
+    submitted at a time, so the scheduler and this process hold a bounded number of tasks and
+    results however long the sweep: a finished trial's rows go to disk and its result is released."""
     from distributed import as_completed
 
-    futures = client.map(run_trial, tasks, pure=False)
-    task_of = {f.key: t for f, t in zip(futures, tasks, strict=True)}
+    threads = sum(client.nthreads().values())
+    window = max(DASK_MIN_IN_FLIGHT, DASK_TRIALS_IN_FLIGHT * threads)
+    waiting = iter(tasks)
+    task_of: dict[str, TrialTask] = {}
+
+    def submit(task: TrialTask) -> Any:
+        future = client.submit(run_trial, task, pure=False)
+        task_of[future.key] = task
+        return future
+
+    running = as_completed([submit(t) for t in itertools.islice(waiting, window)])
     try:
-        for future in as_completed(futures):
+        for future in running:
+            task = task_of.pop(future.key)
             try:
                 rows = future.result()
             except Exception as exc:  # noqa: BLE001  (a killed worker, an error in the trial)
-                on_error(task_of[future.key], f"{type(exc).__name__}: {exc}")
-                continue
-            on_rows(rows)
+                on_error(task, f"{type(exc).__name__}: {exc}")
+            else:
+                on_rows(rows)
             future.release()
+            following = next(waiting, None)
+            if following is not None:
+                running.add(submit(following))
     finally:
         with contextlib.suppress(Exception):
-            client.cancel(futures)
+            client.cancel(list(running.futures))
 
 
 @contextlib.contextmanager
