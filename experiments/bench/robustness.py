@@ -217,9 +217,10 @@ def render_scenario(case: Case) -> Scenario:
 
 
 def render_inputs(case: Case, rng: np.random.Generator, seed: int, trial: int) -> tuple:
-    """As measurement_inputs, for a trial rendered into a temporary dataset and detected (a random
+    """As measurement_inputs, for a trial rendered and detected (a random
     mount and the scenario's views, as a render sweep's trial)."""
-    from experiments.sweep.trials import TrialTask, _render_inputs
+    from experiments.sweep.trials import TrialTask
+    from experiments.sweep.trials import render_inputs as render_trial_inputs
 
     scenario = render_scenario(case)
     parameters = {"mount": "random", "trajectory": "rotation-rich", "waypoints": None}
@@ -227,7 +228,7 @@ def render_inputs(case: Case, rng: np.random.Generator, seed: int, trial: int) -
     task = TrialTask(
         f"r{index:02d}-t{trial:04d}", case.name, index, trial, seed, RENDER, parameters, (), {}, base_dir
     )
-    observations, board, intrinsics, robot, arm, X, T_base_board = _render_inputs(task, scenario, rng)
+    observations, board, intrinsics, robot, arm, X, T_base_board = render_trial_inputs(task, scenario, rng)
     problem = build_problem(observations, board, intrinsics, robot, arm=arm)
     return observations, problem, problem, X, T_base_board
 

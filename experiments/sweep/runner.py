@@ -170,7 +170,7 @@ def _start_worker(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
 
 
-def _local_pool(workers: int) -> ProcessPoolExecutor:
+def local_pool(workers: int) -> ProcessPoolExecutor:
     """Fresh (spawned) processes with one BLAS thread each: set before they import numpy."""
     os.environ.update(BLAS_ENV)
     return ProcessPoolExecutor(
@@ -183,7 +183,7 @@ def _local_pool(workers: int) -> ProcessPoolExecutor:
 
 def _run_pool(tasks: list[TrialTask], workers: int, on_rows: Callable, on_error: Callable) -> list[TrialTask]:
     """Run tasks on a fresh pool. Returns the tasks left unfinished when a worker died (else [])."""
-    pool = _local_pool(workers)
+    pool = local_pool(workers)
     try:
         pending = {pool.submit(run_trial, t): t for t in tasks}
         broken: list[TrialTask] = []
@@ -399,7 +399,7 @@ def rerun_trial(config: SweepConfig, text: str, keep_dir: Path | None = None) ->
     """Run one trial again, alone, in a fresh worker process like the sweep's."""
     cell, trial = parse_trial_id(config, text)
     task = tasks_for(config, keep_dir)[cell * config.trials + trial]
-    with _local_pool(1) as pool:
+    with local_pool(1) as pool:
         return pool.submit(run_trial, task).result()
 
 

@@ -185,7 +185,8 @@ def _with_depth_bias(observations: list, flange_true: list, X: np.ndarray, scena
     return observations
 
 
-def _measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
+def measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
+    """Synthesise the trial's observations and return the inputs (as render_inputs; no arm)."""
     from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 
     board, intrinsics = scenario.board_definition(), scenario.camera.intrinsics()
@@ -267,9 +268,10 @@ def render_views(
     return dataset, observations
 
 
-def _render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
-    """Render the trial into a dataset (temporary unless task.keep_dir), detect, and return the inputs
-    (with the arm behind its poses: a measurement trial has none)."""
+def render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
+    """Render the trial (in memory unless task.keep_dir or task.example_dir), detect, and return the
+    inputs: observations, board, intrinsics, robot noise, the arm behind the poses (a measurement
+    trial has none), the true T_flange_cam and T_base_board."""
     board = scenario.board_definition()
     X = _mount(scenario, task.parameters["mount"], rng)
     flange = _flange_poses(scenario, board, task.parameters, X, rng)
@@ -318,7 +320,7 @@ def run_trial(task: TrialTask) -> list[dict]:
     no_crb = (math.nan, math.nan)
     start = time.perf_counter()
     try:
-        make = _measurement_inputs if task.fidelity == MEASUREMENTS else _render_inputs
+        make = measurement_inputs if task.fidelity == MEASUREMENTS else render_inputs
         observations, board, intrinsics, robot, arm, X, T_base_board = make(task, scenario, rng)
         problem = build_problem(observations, board, intrinsics, robot, arm=arm)
     except (CalibrationInputError, SweepError) as exc:
