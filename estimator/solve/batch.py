@@ -7,25 +7,27 @@ T_flange_cam if given, and the same wide prior on the state the filters start fr
 Parameters are perturbations of the starting state (estimator.geometry.lie convention), so the
 result is comparable with the filters.
 Gauss-Newton with step halving (iteratively reweighted for a Huber loss on the whitened
-residuals when robust) on the dense normal equations of the analytic Jacobian (each frame's
-residuals depend on the state and on its own delta only): a few hundred parameters. (scipy's
-least_squares reached the same optimum: its exact trust-region solver took ~10x longer, its
-sparse one, LSMR, did not converge in 300 evaluations.) Dense solves run on one BLAS thread:
-OpenBLAS threads made them 10x slower on a busy 2-core machine.
+residuals when robust) on the normal equations of the analytic Jacobian, solved by the Schur
+complement over the per-frame deltas (each frame's residuals depend on the state and on its own
+delta only: estimator.solve.block_arrow). (scipy's least_squares reached the same optimum: its exact
+trust-region solver took ~10x longer, its sparse one, LSMR, did not converge in 300 evaluations.)
+Solves run on one BLAS thread: OpenBLAS threads made them 10x slower on a busy 2-core machine.
 Covariance: the state block of inv(J^T W J) at the optimum (W the Huber weights).
 """
 
 from __future__ import annotations
 
+import functools
 import time
+from contextlib import AbstractContextManager
 
 import numpy as np
-from scipy.stats import chi2
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from estimator.geometry.lie import pose_plus_jacobian
+from estimator.solve.block_arrow import BlockLayout, global_inverse, normal_solve
 from estimator.solve.calibration import Calibration, MethodOptions, Prior, calibration_from_state
-from estimator.solve.filters import GATE_PROBABILITY, initial_covariance, marker_rows
+from estimator.solve.filters import gate_threshold, initial_covariance, marker_rows
 from estimator.solve.initialise import initial_state
 from estimator.solve.measurement_model import HandEyeState, predict_frame
 from estimator.solve.problem import CalibrationProblem
@@ -36,6 +38,21 @@ GN_MAX_ITERATIONS = 50
 GN_STEP_TOLERANCE = 1e-12
 GN_COST_TOLERANCE = 1e-10
 LINE_SEARCH_HALVINGS = 10
+
+
+class OutsideModel(Exception):
+    """Parameters the model cannot take (a self-calibrated focal length at or below zero): the
+    line search counts them as infinitely costly and halves the step."""
+
+
+@functools.cache
+def _threadpools() -> ThreadpoolController:
+    return ThreadpoolController()
+
+
+def one_blas_thread() -> AbstractContextManager:
+    """A context limiting BLAS to one thread (the controller, slow to build, is built once)."""
+    return _threadpools().limit(limits=1, user_api="blas")
 
 
 class BatchObjective:
@@ -55,6 +72,18 @@ class BatchObjective:
     @property
     def size(self) -> int:
         return self.n + (6 * len(self.problem.frames) if self.with_robot else 0)
+
+    @property
+    def layout(self) -> BlockLayout:
+        """The Jacobian's block-arrow structure: the state's columns, and per frame its rows (measurements,
+        then the delta's prior) and its delta's columns (none without robot noise)."""
+        row = self.n + (6 if self.prior is not None else 0)
+        local = []
+        for i, frame in enumerate(self.problem.frames if self.with_robot else []):
+            rows = len(frame.stacked.whitening) + 6
+            local.append((slice(row, row + rows), slice(self.n + 6 * i, self.n + 6 * i + 6)))
+            row += rows
+        return BlockLayout(np.arange(self.n), local)
 
     def _delta(self, params: np.ndarray, i: int) -> np.ndarray | None:
         return params[self.n + 6 * i : self.n + 6 * i + 6] if self.with_robot else None
@@ -111,38 +140,44 @@ def huber_weights(r: np.ndarray) -> np.ndarray:
     return np.where(a <= HUBER_SCALE, 1.0, HUBER_SCALE / np.maximum(a, 1e-300))
 
 
+def robust_cost(r: np.ndarray, robust: bool) -> float:
+    """The least-squares cost of whitened residuals r, Huber's with robust."""
+    if not robust:
+        return float(r @ r)
+    a = np.abs(r)
+    return float(np.sum(np.where(a <= HUBER_SCALE, a * a, 2 * HUBER_SCALE * a - HUBER_SCALE**2)))
+
+
 def gauss_newton(
     objective: BatchObjective, x0: np.ndarray, robust: bool, cost_tolerance: float = GN_COST_TOLERANCE
 ) -> tuple[np.ndarray, int]:
     """The (Huber-weighted, with robust) least-squares optimum of the batch objective from x0:
-    Gauss-Newton with step halving on the dense normal equations (a few hundred parameters).
+    Gauss-Newton with step halving on the normal equations (block_arrow.normal_solve).
     Stops when a step lowers the cost by less than cost_tolerance of it (or cannot lower it).
     Returns the parameters and the iterations run."""
-
-    def cost(x: np.ndarray) -> float:
-        r = objective.residuals(x)
-        if not robust:
-            return float(r @ r)
-        a = np.abs(r)
-        return float(np.sum(np.where(a <= HUBER_SCALE, a * a, 2 * HUBER_SCALE * a - HUBER_SCALE**2)))
-
-    x, current = x0, cost(x0)
+    layout = objective.layout
+    x, r = x0, objective.residuals(x0)
+    current = robust_cost(r, robust)
     iterations = 0
     while iterations < GN_MAX_ITERATIONS:
         iterations += 1
-        r = objective.residuals(x)
         J = objective.jacobian(x)
-        w = huber_weights(r) if robust else np.ones_like(r)
-        Jw = J * w[:, None]
-        step = -np.linalg.solve(J.T @ Jw, Jw.T @ r)
+        root_w = np.sqrt(huber_weights(r)) if robust else np.ones_like(r)
+        step = -normal_solve(J * root_w[:, None], r * root_w, layout)
         for _ in range(LINE_SEARCH_HALVINGS):
-            trial = cost(x + step)
+            moved = x + step
+            try:
+                r_moved = objective.residuals(moved)
+            except OutsideModel:
+                step = 0.5 * step
+                continue
+            trial = robust_cost(r_moved, robust)
             if trial <= current:
                 break
             step = 0.5 * step
         else:
             break
-        x, previous, current = x + step, current, trial
+        x, r, previous, current = moved, r_moved, current, trial
         if np.max(np.abs(step)) < GN_STEP_TOLERANCE or previous - current < cost_tolerance * previous:
             break
     return x, iterations
@@ -160,10 +195,12 @@ def weighted_jacobian(
 
 def state_covariance(objective: BatchObjective, params: np.ndarray, robust: bool) -> np.ndarray:
     """(n, n) covariance of the state's local perturbation at params: the state block of
-    inv(J^T W J), carried from the parameters to the perturbation at the estimate."""
+    inv(J^T W J) (the Schur complement's inverse), carried from the parameters to the perturbation
+    at the estimate."""
     _, J = weighted_jacobian(objective, params, robust)
     to_local = objective.start.plus_jacobian(params[: objective.n])
-    cov = to_local @ np.linalg.inv(J.T @ J)[: objective.n, : objective.n] @ to_local.T
+    n = objective.n  # the state: the first of the global columns
+    cov = to_local @ global_inverse(J, objective.layout)[:n, :n] @ to_local.T
     return 0.5 * (cov + cov.T)
 
 
@@ -173,7 +210,7 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     start_point = initial_state(problem, options)
     start, source = start_point.state, start_point.source
     objective = BatchObjective(problem, start, initial_covariance(start, options), options.prior)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         params, iterations = gauss_newton(objective, np.zeros(objective.size), options.robust)
         state = start.plus(params[: objective.n])
         cov = state_covariance(objective, params, options.robust)
@@ -198,6 +235,6 @@ def outliers(problem: CalibrationProblem, residuals: list[np.ndarray]) -> set[tu
     out = set()
     for frame, residual in zip(problem.frames, residuals, strict=True):
         for m, rows in zip(frame.markers, marker_rows(frame), strict=True):
-            if np.sum(residual[rows] ** 2) > chi2.ppf(GATE_PROBABILITY, rows.stop - rows.start):
+            if np.sum(residual[rows] ** 2) > gate_threshold(rows.stop - rows.start):
                 out.add((frame.frame, m.marker_id))
     return out

@@ -141,20 +141,14 @@ def marker_residuals(
     out = []
     for frame in problem.frames:
         pred = predict_frame(problem, state, frame, jacobians=False)
+        corners_px = np.concatenate([m.corners_px for m in frame.markers])
+        rms_px = np.sqrt(np.mean(np.sum((pred.pixels - corners_px) ** 2, axis=1).reshape(-1, 4), axis=1))
+        depth_m = np.array([np.full(4, np.nan) if m.depth_m is None else m.depth_m for m in frame.markers])
+        depth_mm = 1e3 * np.sqrt(np.mean((pred.depth_m.reshape(-1, 4) - depth_m) ** 2, axis=1))
         for k, m in enumerate(frame.markers):
-            d_px = np.linalg.norm(pred.pixels[4 * k : 4 * k + 4] - m.corners_px, axis=1)
-            depth = None
-            if m.depth_m is not None:
-                depth = 1e3 * float(np.sqrt(np.mean((pred.depth_m[4 * k : 4 * k + 4] - m.depth_m) ** 2)))
-            out.append(
-                MarkerResidual(
-                    frame.frame,
-                    m.marker_id,
-                    float(np.sqrt(np.mean(d_px**2))),
-                    depth,
-                    (frame.frame, m.marker_id) not in rejected,
-                )
-            )
+            depth = None if m.depth_m is None else float(depth_mm[k])
+            used = (frame.frame, m.marker_id) not in rejected
+            out.append(MarkerResidual(frame.frame, m.marker_id, float(rms_px[k]), depth, used))
     return out
 
 

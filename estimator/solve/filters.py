@@ -16,6 +16,7 @@ tolerance). The state is then moved to the estimate (estimator.geometry.lie conv
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -46,6 +47,12 @@ DEPTH_SCALE_PRIOR_SIGMA = 0.05
 # linearisation about landmarks 0.5 m uncertain is far off after the first frame: ekf then
 # ended 34x the Cramer-Rao bound (NEES 250); with 1 cm it reaches 0.84x (NEES 5.8).
 DEFAULT_LANDMARK_SIGMA_M = 0.01
+
+
+@functools.cache
+def gate_threshold(dof: int) -> float:
+    """The chi-square gate on a whitened innovation of dof rows (GATE_PROBABILITY quantile)."""
+    return float(chi2.ppf(GATE_PROBABILITY, dof))
 
 
 def initial_covariance(state: HandEyeState, options: MethodOptions) -> np.ndarray:
@@ -103,11 +110,12 @@ def gate_markers(
     and the marker IDs that fail it. H: (m, n_a) Jacobian of the whitened prediction."""
     keep = np.ones(len(residual), dtype=bool)
     failed = []
+    HP = H @ P_a
     for m, rows in zip(frame.markers, marker_rows(frame), strict=True):
         Hk = H[rows]
-        S = Hk @ P_a @ Hk.T + np.eye(len(Hk))
+        S = HP[rows] @ Hk.T + np.eye(len(Hk))
         nis = float(residual[rows] @ np.linalg.solve(S, residual[rows]))
-        if nis > chi2.ppf(GATE_PROBABILITY, len(Hk)):
+        if nis > gate_threshold(len(Hk)):
             keep[rows] = False
             failed.append(m.marker_id)
     return keep, failed

@@ -26,17 +26,18 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2, norm
-from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import pose_minus
 from estimator.solve.batch import (
     HUBER_SCALE,
     BatchObjective,
     gauss_newton,
+    one_blas_thread,
     outliers,
     state_covariance,
     weighted_jacobian,
 )
+from estimator.solve.block_arrow import hat_diagonal
 from estimator.solve.calibration import MethodOptions, Prior
 from estimator.solve.depth_check import DepthCheck, depth_check, has_depth, misfit, pixels_only
 from estimator.solve.filters import initial_covariance
@@ -185,7 +186,7 @@ def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedN
     optimum's map model and depth-scale choice (options). With depths, learned twice, with them and
     from the pixels alone: the pixels' result when the depths disagree (estimator.solve.depth_check)."""
     started = time.perf_counter()
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         learned = _learn_noise(problem, options)
         if has_depth(problem):
             pixels = _learn_noise(pixels_only(problem), options)
@@ -247,8 +248,9 @@ def _vce(
         x0 = np.zeros(objective.size) if params is None else params
         params, _ = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
         r, J = weighted_jacobian(objective, params, options.robust)
-        hat = np.einsum("ij,ji->i", J, np.linalg.solve(J.T @ J, J.T))
-        groups = _row_groups(objective, scaled)
+        hat = hat_diagonal(J, objective.layout)
+        if iterations == 1:  # the rows and their groups are the same at every level
+            groups = _row_groups(objective, scaled)
         squares = np.minimum(r**2, HUBER_SCALE**2) / _CLIPPED_SQUARE if options.robust else r**2
         factors = {}
         for g, name in enumerate(GROUPS):

@@ -48,7 +48,8 @@ from scipy.stats import chi2
 
 from estimator.geometry.kinematics import URKinematics, forward
 from estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
-from estimator.solve.batch import BatchObjective
+from estimator.solve.batch import BatchObjective, OutsideModel
+from estimator.solve.block_arrow import BlockLayout
 from estimator.solve.measurement_model import predict_frame
 from estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
@@ -196,16 +197,19 @@ def adjusted_problem(
     bias, the board's bend and the arm's kinematics corrected by theta (values of names; the rest
     zero; the depth bias and the bend replaced: the declared problem has none). Kinematic
     corrections move each reported flange pose by what the corrected model computes from its
-    joints minus what the nominal one does."""
+    joints minus what the nominal one does. Raises OutsideModel for a focal length at or below 0."""
     t = {n: float(v) for n, v in zip(names, theta, strict=True)}
     k = problem.intrinsics
     dist = list(k.dist) + [0.0] * (5 - len(k.dist))
     dist[0] += t.get("k1", 0.0)
     dist[1] += t.get("k2", 0.0)
+    fx, fy = k.fx + t.get("fx_px", 0.0), k.fy + t.get("fy_px", 0.0)
+    if not (fx > 0 and fy > 0):
+        raise OutsideModel(f"focal lengths fx={fx:g}, fy={fy:g} px")
     intrinsics = replace(
         k,
-        fx=k.fx + t.get("fx_px", 0.0),
-        fy=k.fy + t.get("fy_px", 0.0),
+        fx=fx,
+        fy=fy,
         cx=k.cx + t.get("cx_px", 0.0),
         cy=k.cy + t.get("cy_px", 0.0),
         dist=tuple(dist),
@@ -353,6 +357,13 @@ class SelfCalibrationObjective:
     @property
     def size(self) -> int:
         return self.inner.size + len(self.names)
+
+    @property
+    def layout(self) -> BlockLayout:
+        """The batch layout, theta's columns global too (its prior rows touch only them)."""
+        inner = self.inner.layout
+        theta = self.inner.size + np.arange(len(self.names))
+        return BlockLayout(np.concatenate([inner.global_columns, theta]), inner.local)
 
     def _objective(self, theta: np.ndarray) -> BatchObjective:
         key = theta.tobytes()

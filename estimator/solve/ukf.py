@@ -93,13 +93,12 @@ import time
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.stats import chi2
 
 from estimator.solve.calibration import Calibration, MethodOptions, calibration_from_state
 from estimator.solve.filters import (
-    GATE_PROBABILITY,
     IEKF_MAX_ITERATIONS,
     apply_prior,
+    gate_threshold,
     initial_covariance,
     marker_rows,
     prior_first,
@@ -163,7 +162,7 @@ def gate(
         for m, local in zip(f.markers, marker_rows(f), strict=True):
             rows = slice(offset + local.start, offset + local.stop)
             nis = float(innovation[rows] @ np.linalg.solve(S[rows, rows], innovation[rows]))
-            if nis > chi2.ppf(GATE_PROBABILITY, rows.stop - rows.start):
+            if nis > gate_threshold(rows.stop - rows.start):
                 keep[rows] = False
                 failed.append((f.frame, m.marker_id))
         offset += sum(m.whitening.shape[0] for m in f.markers)

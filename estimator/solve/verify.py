@@ -23,11 +23,10 @@ from typing import TypeVar
 
 import numpy as np
 from scipy.stats import chi2
-from threadpoolctl import threadpool_limits
 
 from estimator.geometry.lie import delta_size, pose_minus
 from estimator.io.calibration_file import LearnedNoiseLevels
-from estimator.solve.batch import BatchObjective, gauss_newton, state_covariance
+from estimator.solve.batch import BatchObjective, gauss_newton, one_blas_thread, state_covariance
 from estimator.solve.calibration import MethodOptions
 from estimator.solve.depth_check import pixels_only
 from estimator.solve.filters import initial_covariance
@@ -147,7 +146,7 @@ def verify_mount(
     start = HandEyeState(T_flange_cam, _board_start(problem, T_flange_cam), depth_scale=depth_scale)
     options = MethodOptions()
     objective = BatchObjective(problem, start, initial_covariance(start, options), None)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         params, _ = gauss_newton(objective, np.zeros(objective.size), options.robust)
         cov_state = state_covariance(objective, params, options.robust)
     state = start.plus(params[: objective.n])

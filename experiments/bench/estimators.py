@@ -53,6 +53,8 @@ CASES = {
     "robot noise ignored": (SyntheticNoise(), EXACT_POSES, ("ekf", "batch")),
 }
 TIMING_VIEWS = 15
+# The default rendered trajectory's views, for time_against_park.
+PARK_VIEWS = 17
 
 
 def run_trial(case: str, seed: int, trial: int) -> dict:
@@ -211,6 +213,30 @@ def time_methods(rounds: int, seed: int) -> dict[str, float]:
             samples.append(time.perf_counter() - start)
         times[method] = float(np.median(samples))
     return times
+
+
+def time_against_park(rounds: int, seed: int) -> dict[str, float]:
+    """Median seconds over rounds, side by side on one scene of PARK_VIEWS views x 8 markers (a fresh
+    problem each round, so first-use caches count): 'ekf' and 'batch' (the methods alone, declared
+    noise), 'batch_learned' (run_method's default: noise learned first, then observability) and 'park'
+    (OpenCV's Park including the PnP board poses it needs: opencv_calibrate's own time_s)."""
+    rng = np.random.default_rng(seed)
+    observations = scene(random_mount(rng), rng, views=PARK_VIEWS)
+    runs = {
+        "ekf": lambda p: METHODS["ekf"](p, MethodOptions(), observations),
+        "batch": lambda p: METHODS["batch"](p, MethodOptions(), observations),
+        "batch_learned": lambda p: run_method("batch", p, MethodOptions(), observations),
+    }
+    samples: dict[str, list[float]] = {name: [] for name in (*runs, "park")}
+    for _ in range(rounds):
+        for name, run in runs.items():
+            problem = build_problem(observations, BOARD, INTRINSICS)
+            start = time.perf_counter()
+            run(problem)
+            samples[name].append(time.perf_counter() - start)
+        park = METHODS["opencv-park"](build_problem(observations, BOARD, INTRINSICS), MethodOptions(), None)
+        samples["park"].append(park.diagnostics["time_s"])
+    return {name: float(np.median(values)) for name, values in samples.items()}
 
 
 def main(argv: list[str] | None = None) -> int:
