@@ -1,10 +1,10 @@
 """One sweep trial: draw the mount, the views and the noise from the trial's seed, build the
-observations (synthesised at measurement fidelity; rendered, detected and read back at render
-fidelity, as `hec demo` does) and run every method against the truth.
+observations (synthesised at measurement fidelity; rendered and detected at render fidelity, as
+`hec demo` does) and run every method against the truth.
 
 Fidelities: ``measurements`` synthesises the observations from the cell's geometry and
 noise models (estimator.observe.synthetic: no images); ``render`` renders each trial with MuJoCo
-into a temporary dataset (sim.simulate), detects the board and estimates.
+(sim.simulate; in memory, or into a dataset folder when kept), detects the board and estimates.
 """
 
 from __future__ import annotations
