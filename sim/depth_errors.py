@@ -17,6 +17,8 @@ import numpy as np
 from scipy.fft import irfft2, next_fast_len, rfft2
 from scipy.optimize import brentq
 
+from sim.fast_normal import quantised_normal
+
 _INV_E = float(np.exp(-1.0))
 
 
@@ -66,13 +68,14 @@ def correlated_unit_noise(
     at lag L = correlation_px pixels (as autocorrelation_length measures it). White noise filtered by
     a Gaussian (sigma ~ L / 2, solved so that the discrete field hits L exactly), generated on a
     padded grid and cropped so the border is as correlated as the centre. L <= 0.5 gives white noise.
+    The white noise is sim.fast_normal's quantised Gaussian.
     """
     h, w = shape
     if correlation_px <= 0.5:
-        return rng.standard_normal((h, w), dtype=np.float32)
+        return quantised_normal(rng, (h, w))
     g = _kernel_for_length(float(correlation_px))
     r = g.size // 2
-    white = rng.standard_normal((h + 2 * r, w + 2 * r), dtype=np.float32)
+    white = quantised_normal(rng, (h + 2 * r, w + 2 * r))
     return cv2.sepFilter2D(white, cv2.CV_32F, g, g)[r : r + h, r : r + w]
 
 

@@ -2,7 +2,8 @@
 
 Depth (D435-like stereo): systematic bias, Gaussian noise growing with z^2,
 invalid pixels at grazing angles and at random, and quantisation to the steps
-of a uint16 depth image. Colour: Gaussian blur and additive Gaussian noise.
+of a uint16 depth image. Colour: Gaussian blur and additive Gaussian noise. The
+Gaussian fields are sim.fast_normal's 16-bit quantised ones; arithmetic is float32.
 Robot: a noisy reported flange pose. Pure numpy/scipy/OpenCV (no MuJoCo).
 
 All randomness comes from the ``numpy.random.Generator`` passed in; the same
@@ -11,6 +12,8 @@ along the optical axis, 0.0 marks an invalid pixel.
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -21,6 +24,7 @@ from estimator.io.dataset import decode_depth, encode_depth
 from estimator.observe.depth import DepthNoiseModel
 from estimator.solve.problem import RobotPoseNoise as RobotPoseNoiseModel
 from sim.depth_errors import correlated_unit_noise
+from sim.fast_normal import quantised_normal
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
@@ -72,6 +76,16 @@ def _valid_mask(depth_m: np.ndarray) -> np.ndarray:
         return np.isfinite(depth_m) & (depth_m > 0.0) & (depth_m <= MAX_RANGE_M)
 
 
+@lru_cache(maxsize=4)
+def _rays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x = (u - cx) / fx, y = (v - cy) / fy and x^2 + y^2 + 1 of every pixel: three (H, W) float32."""
+    w, h = intrinsics.width, intrinsics.height
+    rx = ((np.arange(w, dtype=np.float32) - intrinsics.cx) / intrinsics.fx)[None, :]
+    ry = ((np.arange(h, dtype=np.float32) - intrinsics.cy) / intrinsics.fy)[:, None]
+    rays = np.broadcast_arrays(rx, ry, rx * rx + ry * ry + np.float32(1.0))
+    return tuple(np.ascontiguousarray(r) for r in rays)
+
+
 def _grazing_mask(
     depth_true_m: np.ndarray, valid: np.ndarray, intrinsics: CameraIntrinsics, grazing_angle_deg: float
 ) -> np.ndarray:
@@ -84,21 +98,24 @@ def _grazing_mask(
     h, w = depth_true_m.shape
     if h < 2 or w < 2:
         return np.ones((h, w), dtype=bool)
-    z = np.where(valid, depth_true_m, np.nan).astype(np.float32)
-    # Viewing ray r = ((u - cx) / fx, (v - cy) / fy, 1); the point is p = z * r.
-    rx = ((np.arange(w, dtype=np.float32) - intrinsics.cx) / intrinsics.fx)[None, :]
-    ry = ((np.arange(h, dtype=np.float32) - intrinsics.cy) / intrinsics.fy)[:, None]
+    z = np.where(valid, depth_true_m, np.float32(np.nan)).astype(np.float32, copy=False)
+    # Viewing ray r = (x, y, 1), x = (u - cx) / fx, y = (v - cy) / fy; the point is p = z r. The
+    # tangents dp/du = z_u r + (z / fx) e_x, dp/dv = z_v r + (z / fy) e_y have the normal
+    # n = (z / (fx fy)) (-fx z_u, -fy z_v, fx z_u x + fy z_v y + z), and n . r = z^2 / (fx fy), so
+    # cos(angle) = z / (|m| |r|) with m = (-gu, -gv, gu x + gv y + z), gu = fx z_u, gv = fy z_v.
+    rx, ry, r2 = _rays(intrinsics)
     z_v, z_u = np.gradient(z)
-    # Tangents dp/du = z_u r + (z / fx, 0, 0) and dp/dv = z_v r + (0, z / fy, 0).
-    ax, ay, az = z_u * rx + z / intrinsics.fx, z_u * ry, z_u
-    bx, by, bz = z_v * rx, z_v * ry + z / intrinsics.fy, z_v
-    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_angle = np.abs(nx * rx + ny * ry + nz) / np.sqrt(
-            (nx * nx + ny * ny + nz * nz) * (rx * rx + ry * ry + 1.0)
-        )
-        keep = cos_angle >= np.cos(np.radians(grazing_angle_deg))  # NaN compares False
-    return ~keep
+    gu, gv = z_u * np.float32(intrinsics.fx), z_v * np.float32(intrinsics.fy)
+    m_z = gu * rx
+    m_z += gv * ry
+    m_z += z
+    m2 = np.square(gu, out=gu)
+    m2 += np.square(gv, out=gv)
+    m2 += np.square(m_z, out=m_z)
+    m2 *= r2
+    m2 *= np.float32(np.cos(np.radians(grazing_angle_deg)) ** 2)
+    with np.errstate(invalid="ignore"):
+        return ~(np.square(z, out=z) >= m2)  # NaN compares False
 
 
 def apply_depth_models(
@@ -126,19 +143,21 @@ def apply_depth_models(
             f"({intrinsics.height}, {intrinsics.width})"
         )
     valid = _valid_mask(depth_true_m)
-    z_true = np.where(valid, depth_true_m, 0.0).astype(np.float64)
-    z = z_true.copy()
+    z_true = np.where(valid, depth_true_m, np.float32(0.0)).astype(np.float32, copy=False)
+    z = z_true
 
     bias = noise.depth_bias
     if bias.enabled:
-        z = bias.scale * z + bias.offset_m
+        z = np.float32(bias.scale) * z + np.float32(bias.offset_m)
 
     if noise.depth.enabled:
         if correlation_px > 1.0:
             unit = correlated_unit_noise(z.shape, correlation_px, rng)
         else:
-            unit = rng.standard_normal(z.shape, dtype=np.float32)
-        z = z + depth_sigma(z_true, noise.depth) * unit
+            unit = quantised_normal(rng, z.shape)
+        unit *= np.square(z_true)
+        unit *= np.float32(depth_sigma(1.0, noise.depth))  # sigma(z_true) * unit
+        z = np.add(unit, z, out=unit)
 
     invalid = noise.invalid_depth
     if invalid.enabled:
@@ -147,12 +166,12 @@ def apply_depth_models(
             valid &= rng.random(z.shape, dtype=np.float32) >= invalid.dropout_fraction
 
     valid &= z > 0.0  # bias or noise may push a depth to or below zero
-    z = np.where(valid, z, 0.0)
+    z = np.where(valid, z, np.float32(0.0))
 
     quant = noise.depth_quantisation
     if quant.enabled:
         return decode_depth(encode_depth(z, quant.depth_scale_m), quant.depth_scale_m)
-    return z.astype(np.float32)
+    return z
 
 
 def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generator) -> np.ndarray:
@@ -177,8 +196,8 @@ def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generat
             borderType=cv2.BORDER_REFLECT_101,
         )
     if settings.sigma > 0.0:
-        img += np.float32(settings.sigma) * rng.standard_normal(img.shape, dtype=np.float32)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        img += quantised_normal(rng, img.shape, settings.sigma)
+    return np.rint(np.clip(img, 0, 255, out=img), out=img).astype(np.uint8)
 
 
 def perturb_flange_pose(

@@ -7,7 +7,9 @@ Frames: ``base`` is UR's base frame, ``flange`` is tool0 (DH frame 6).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -50,23 +52,30 @@ UR5E = URKinematics(
 ROBOTS = {k.name: k for k in (UR5, UR5E)}
 
 
+@lru_cache(maxsize=32)
+def _dh_table(kin: URKinematics) -> tuple[np.ndarray, ...]:
+    """Per joint (6,) float64: theta_offset, a, cos(alpha), sin(alpha), and the (6, 4, 4) steps with
+    the entries that do not depend on the joint angle filled in."""
+    a = np.array(kin.a)
+    ca, sa = np.cos(kin.alpha), np.sin(kin.alpha)
+    steps = np.zeros((6, 4, 4))
+    steps[:, 2, 1], steps[:, 2, 2], steps[:, 2, 3], steps[:, 3, 3] = sa, ca, kin.d, 1.0
+    return np.array(kin.theta_offset), a, ca, sa, steps
+
+
 def dh_frames(kin: URKinematics, q: np.ndarray) -> np.ndarray:
     """(7, 4, 4) poses T_base_i of DH frames 0..6 for joint angles q (6,)."""
+    offset, a, ca, sa, template = _dh_table(kin)
+    q = np.asarray(q, dtype=float)
+    theta = np.where(offset != 0.0, q + offset, q)  # nominal: q exactly
+    ct, st = np.cos(theta), np.sin(theta)
+    steps = template.copy()
+    steps[:, 0, 0], steps[:, 0, 1], steps[:, 0, 2], steps[:, 0, 3] = ct, -st * ca, st * sa, a * ct
+    steps[:, 1, 0], steps[:, 1, 1], steps[:, 1, 2], steps[:, 1, 3] = st, ct * ca, -ct * sa, a * st
     frames = np.empty((7, 4, 4))
     frames[0] = np.eye(4)
     for i in range(6):
-        theta = q[i] + kin.theta_offset[i] if kin.theta_offset[i] else q[i]  # nominal: q exactly
-        ct, st = np.cos(theta), np.sin(theta)
-        ca, sa = np.cos(kin.alpha[i]), np.sin(kin.alpha[i])
-        step = np.array(
-            [
-                [ct, -st * ca, st * sa, kin.a[i] * ct],
-                [st, ct * ca, -ct * sa, kin.a[i] * st],
-                [0.0, sa, ca, kin.d[i]],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
-        frames[i + 1] = frames[i] @ step
+        np.matmul(frames[i], steps[i], out=frames[i + 1])
     return frames
 
 
@@ -81,16 +90,27 @@ def jacobian(kin: URKinematics, q: np.ndarray) -> np.ndarray:
 
 
 def _jacobian_from_frames(frames: np.ndarray) -> np.ndarray:
-    z_axes = frames[:6, :3, 2]
-    origins = frames[:6, :3, 3]
-    return np.vstack([np.cross(z_axes, frames[6, :3, 3] - origins).T, z_axes.T])
+    """(6, 6) Jacobian from the (7, 4, 4) DH frames: column i is (z_i x (p_6 - p_i), z_i)."""
+    z = frames[:6, :3, 2].T  # (3, 6): z axis of each joint
+    r = frames[6, :3, 3, None] - frames[:6, :3, 3].T  # (3, 6): joint origin to flange
+    J = np.empty((6, 6), order="F")  # Fortran order as ever: solve_ik's BLAS products round by layout
+    J[0] = z[1] * r[2] - z[2] * r[1]
+    J[1] = z[2] * r[0] - z[0] * r[2]
+    J[2] = z[0] * r[1] - z[1] * r[0]
+    J[3:] = z
+    return J
+
+
+def _norm(v: np.ndarray) -> float:
+    """Euclidean norm of a (3,) vector (as np.linalg.norm computes it)."""
+    return math.sqrt(v.dot(v))
 
 
 def _rotation_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector (3,) of a (3, 3) rotation."""
     skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    sin2 = np.linalg.norm(skew)
-    angle = np.arctan2(0.5 * sin2, 0.5 * (np.trace(R) - 1.0))
+    sin2 = _norm(skew)
+    angle = np.arctan2(0.5 * sin2, 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0))
     if angle > np.pi - 1e-3:
         return Rotation.from_matrix(R).as_rotvec()
     return skew * (0.5 if sin2 < 1e-12 else angle / sin2)
@@ -123,13 +143,16 @@ def solve_ik(
     lower, upper = np.array(kin.q_lower), np.array(kin.q_upper)
     q = np.clip(np.asarray(q_seed, dtype=float), lower, upper)
     R_target, p_target = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    damping_eye = damping**2 * np.eye(6)
+    e = np.empty(6)
+    e_p, e_r = e[:3], e[3:]
     history: list[float] = []
     for iteration in range(max_iterations + 1):
         frames = dh_frames(kin, q)
         T = frames[6]
-        e_p = p_target - T[:3, 3]
-        e_r = _rotation_log(R_target @ T[:3, :3].T)
-        error = np.linalg.norm(e_p) + np.linalg.norm(e_r)
+        np.subtract(p_target, T[:3, 3], out=e_p)
+        e_r[:] = _rotation_log(R_target @ T[:3, :3].T)
+        error = _norm(e_p) + _norm(e_r)
         if error < tol or iteration == max_iterations:
             break
         # Stop early when the error has not halved in the last stall_window iterations.
@@ -137,13 +160,12 @@ def solve_ik(
         if len(history) > stall_window and error > 0.5 * history[-stall_window - 1]:
             break
         J = _jacobian_from_frames(frames)
-        e = np.concatenate([e_p, e_r])
-        dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(6), e)
-        largest = np.max(np.abs(dq))
+        dq = J.T @ np.linalg.solve(J @ J.T + damping_eye, e)
+        largest = np.abs(dq).max()
         if largest > max_step_rad:
             dq *= max_step_rad / largest
-        q = np.clip(q + dq, lower, upper)
-    pos_err, rot_err = float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r))
+        q = np.minimum(np.maximum(q + dq, lower), upper)
+    pos_err, rot_err = _norm(e_p), _norm(e_r)
     converged = pos_err < 1e-8 and rot_err < 1e-8
     return IKResult(q, converged, pos_err, rot_err, iteration)
 
