@@ -24,13 +24,20 @@ from contextlib import AbstractContextManager
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from estimator.geometry.lie import pose_plus_jacobian
 from estimator.solve.block_arrow import BlockLayout, global_inverse, normal_solve
 from estimator.solve.calibration import Calibration, MethodOptions, Prior, calibration_from_state
 from estimator.solve.filters import gate_threshold, initial_covariance, marker_rows
 from estimator.solve.initialise import initial_state
-from estimator.solve.measurement_model import HandEyeState, predict_frame
+from estimator.solve.measurement_model import HandEyeState
+from estimator.solve.noise_levels import NoiseLevels
 from estimator.solve.problem import CalibrationProblem
+from estimator.solve.stacked_prediction import (
+    StackedFrames,
+    StackedPrediction,
+    plus_jacobian_rows,
+    predict_frames,
+    stacked_frames,
+)
 
 # Whitened residuals beyond this many sigmas are down-weighted (Huber).
 HUBER_SCALE = 3.0
@@ -56,82 +63,105 @@ def one_blas_thread() -> AbstractContextManager:
 
 
 class BatchObjective:
-    """Residuals and Jacobian over params = [state perturbation (n), delta_1 .. delta_N (6 each)]."""
+    """Residuals and Jacobian over params = [state perturbation (n), delta_1 .. delta_N (6 each)]:
+    rows [the state's prior (n), the user's prior (6, if given), per frame its whitened
+    measurements and its delta's prior (6, with robot noise)], all frames predicted at once
+    (estimator.solve.stacked_prediction). With levels, the objective of
+    noise_levels.scaled_problem(problem, levels) without building that problem: the stacked
+    whitening scaled, the robot noise levels'; problem keeps the declared whitening (use stacked's)."""
 
     def __init__(
-        self, problem: CalibrationProblem, start: HandEyeState, P0: np.ndarray, prior: Prior | None
+        self,
+        problem: CalibrationProblem,
+        start: HandEyeState,
+        P0: np.ndarray,
+        prior: Prior | None,
+        levels: NoiseLevels | None = None,
+        declared: StackedFrames | None = None,
     ) -> None:
-        self.problem, self.start, self.prior = problem, start, prior
+        self.problem, self.start, self.P0, self.prior, self.levels = problem, start, P0, prior, levels
         self.n = start.dim
-        self.with_robot = not problem.robot_noise.is_zero
+        robot_noise = problem.robot_noise if levels is None else levels.robot
+        self.with_robot = not robot_noise.is_zero
         self.prior_sqrt_info = np.linalg.cholesky(np.linalg.inv(P0)).T
         self.robot_sqrt_info = (
-            np.diag(1.0 / np.sqrt(np.diag(problem.robot_noise.covariance()))) if self.with_robot else None
+            np.diag(1.0 / np.sqrt(np.diag(robot_noise.covariance()))) if self.with_robot else None
         )
+        self.declared = declared or stacked_frames(problem, start.T_base_board is not None)
+        self.stacked = (
+            self.declared if levels is None else self.declared.scaled(levels.pixel_scale, levels.depth_scale)
+        )
+        self._rows()
+
+    def at_levels(self, levels: NoiseLevels) -> BatchObjective:
+        """This objective's problem at noise levels (see the class doc), its stack reused."""
+        return BatchObjective(self.problem, self.start, self.P0, self.prior, levels, self.declared)
+
+    def _rows(self) -> None:
+        """Where each frame's rows sit: measurement_rows (R,) the stacked rows' places, robot_rows
+        (N, 6) the deltas' prior rows (empty without robot noise), and the block layout."""
+        counts = self.stacked.frame_row_counts
+        robot = 6 if self.with_robot else 0
+        head = self.n + (6 if self.prior is not None else 0)
+        first = head + np.concatenate([[0], np.cumsum(counts + robot)[:-1]]).astype(int)
+        offsets = np.cumsum(counts) - counts  # each frame's first row in the stack
+        frame = self.stacked.frame_of_row
+        self.measurement_rows = first[frame] + np.arange(len(frame)) - offsets[frame]
+        self.robot_rows = (first + counts)[:, None] + np.arange(robot)
+        self.row_count = head + int(counts.sum()) + robot * len(counts)
+        local = [
+            (slice(f, f + c + 6), slice(self.n + 6 * i, self.n + 6 * i + 6))
+            for i, (f, c) in enumerate(zip(first, counts, strict=True))
+        ]
+        self.layout = BlockLayout(np.arange(self.n), local if self.with_robot else [])
 
     @property
     def size(self) -> int:
         return self.n + (6 * len(self.problem.frames) if self.with_robot else 0)
 
-    @property
-    def layout(self) -> BlockLayout:
-        """The Jacobian's block-arrow structure: the state's columns, and per frame its rows (measurements,
-        then the delta's prior) and its delta's columns (none without robot noise)."""
-        row = self.n + (6 if self.prior is not None else 0)
-        local = []
-        for i, frame in enumerate(self.problem.frames if self.with_robot else []):
-            rows = len(frame.stacked.whitening) + 6
-            local.append((slice(row, row + rows), slice(self.n + 6 * i, self.n + 6 * i + 6)))
-            row += rows
-        return BlockLayout(np.arange(self.n), local)
+    def _deltas(self, params: np.ndarray) -> np.ndarray | None:
+        """(N, 6) the frames' flange pose perturbations, None without robot noise."""
+        return params[self.n :].reshape(-1, 6) if self.with_robot else None
 
-    def _delta(self, params: np.ndarray, i: int) -> np.ndarray | None:
-        return params[self.n + 6 * i : self.n + 6 * i + 6] if self.with_robot else None
+    def _predict(self, params: np.ndarray, jacobians: bool) -> tuple[HandEyeState, StackedPrediction]:
+        state = self.start.plus(params[: self.n])
+        return state, predict_frames(self.problem, self.stacked, state, self._deltas(params), jacobians)
 
     def residuals(self, params: np.ndarray) -> np.ndarray:
-        state = self.start.plus(params[: self.n])
-        parts = [self.prior_sqrt_info @ params[: self.n]]
+        state, pred = self._predict(params, jacobians=False)
+        r = np.empty(self.row_count)
+        r[: self.n] = self.prior_sqrt_info @ params[: self.n]
         if self.prior is not None:
-            parts.append(self.prior.whitened_error(state.T_flange_cam)[0])
-        for i, frame in enumerate(self.problem.frames):
-            delta = self._delta(params, i)
-            parts.append(-predict_frame(self.problem, state, frame, delta, jacobians=False).residual)
-            if self.with_robot:
-                parts.append(self.robot_sqrt_info @ delta)
-        return np.concatenate(parts)
+            r[self.n : self.n + 6] = self.prior.whitened_error(state.T_flange_cam)[0]
+        r[self.measurement_rows] = -pred.residual
+        if self.with_robot:
+            r[self.robot_rows] = self._deltas(params) @ self.robot_sqrt_info.T
+        return r
 
     def jacobian(self, params: np.ndarray) -> np.ndarray:
         """(rows, size) dense Jacobian of residuals(params); each frame's rows depend on the state
         and on that frame's delta only (the rest of the row is zero)."""
-        state = self.start.plus(params[: self.n])
+        state, pred = self._predict(params, jacobians=True)
         to_params = state.plus_jacobian(params[: self.n])
-        preds = [
-            predict_frame(self.problem, state, frame, self._delta(params, i))
-            for i, frame in enumerate(self.problem.frames)
-        ]
-        robot_rows = 6 if self.with_robot else 0
-        rows = self.n + (6 if self.prior is not None else 0)
-        J = np.zeros((rows + sum(len(p.residual) + robot_rows for p in preds), self.size))
+        J = np.zeros((self.row_count, self.size))
         J[: self.n, : self.n] = self.prior_sqrt_info
         if self.prior is not None:
-            J[self.n : rows, :6] = self.prior.whitened_error(state.T_flange_cam)[1] @ to_params[:6, :6]
-        for i, pred in enumerate(preds):
-            m = len(pred.residual)
-            J[rows : rows + m, : self.n] = pred.J_state @ to_params
-            if self.with_robot:
-                cols = slice(self.n + 6 * i, self.n + 6 * i + 6)
-                J[rows : rows + m, cols] = pred.J_flange @ pose_plus_jacobian(self._delta(params, i))
-                J[rows + m : rows + m + 6, cols] = self.robot_sqrt_info
-            rows += m + robot_rows
+            J[self.n : self.n + 6, :6] = self.prior.whitened_error(state.T_flange_cam)[1] @ to_params[:6, :6]
+        rows = self.measurement_rows
+        J[rows, : self.n] = pred.J_state @ to_params
+        if self.with_robot:
+            frame = self.stacked.frame_of_row
+            steps = plus_jacobian_rows(self._deltas(params))
+            columns = self.n + 6 * frame[:, None] + np.arange(6)
+            J[rows[:, None], columns] = np.einsum("rk,rkl->rl", pred.J_flange, steps[frame])
+            delta_columns = self.n + 6 * np.arange(len(self.robot_rows))[:, None, None] + np.arange(6)
+            J[self.robot_rows[:, :, None], delta_columns] = self.robot_sqrt_info
         return J
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
         """Whitened measurement residual of each frame at params."""
-        state = self.start.plus(params[: self.n])
-        return [
-            predict_frame(self.problem, state, frame, self._delta(params, i), jacobians=False).residual
-            for i, frame in enumerate(self.problem.frames)
-        ]
+        _, pred = self._predict(params, jacobians=False)
+        return np.split(pred.residual, np.cumsum(self.stacked.frame_row_counts)[:-1])
 
 
 def huber_weights(r: np.ndarray) -> np.ndarray:

@@ -136,21 +136,89 @@ def predict_frame(
     T_base_flange = (
         frame.T_base_flange if delta_flange is None else pose_plus(frame.T_base_flange, delta_flange)
     )
-    R_F, t_F = T_base_flange[:3, :3], T_base_flange[:3, 3]
-    R_X, t_X = state.T_flange_cam[:3, :3], state.T_flange_cam[:3, 3]
     markers = frame.markers
     if state.T_base_board is not None:
+        points = np.concatenate([m.corners_board for m in markers])
+    else:
+        points = np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
+    R_F, t_F = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    pred = predict_points(problem, state, points, R_F, t_F, jacobians, camera_jacobian)
+    stacked = frame.stacked
+    residual = stacked.whitening @ (stacked.measured - pred.predicted[stacked.rows])
+    if not jacobians:
+        return FramePrediction(
+            residual, np.empty((0, 0)), np.empty((0, 0)), pred.pixels, pred.depth, pred.p_cam
+        )
+    J_camera = J_shift = None
+    if camera_jacobian:
+        J_camera, J_shift = _camera_jacobian(problem, state, frame, pred)
+    return FramePrediction(
+        residual,
+        _whitened_rows(stacked, pred.J_state),
+        _whitened_rows(stacked, pred.J_flange),
+        pred.pixels,
+        pred.depth,
+        pred.p_cam,
+        J_camera,
+        J_shift,
+    )
+
+
+@dataclass
+class PointPrediction:
+    """The prediction of P points (4 corners per marker, the markers in order): predicted (12 K,)
+    per marker its 8 corner pixels then its 4 depths; pixels (P, 2); depth (P,); p_cam (P, 3).
+    With jacobians, d(u, v, depth)/d(the state's perturbation) J_state (P, 3, n) and /d(the flange
+    pose's) J_flange (P, 3, 6), and what _camera_jacobian needs: the undistorted and distorted
+    normalised coordinates xy, xy_d (P, 2), the corner bias's derivatives fit (with distortion or
+    camera), d(u, v, depth)/d(p_cam) d_meas_d_cam (P, 3, 3) and d(p_cam)/d(p_base)
+    d_cam_d_base ((3, 3) or (P, 3, 3))."""
+
+    predicted: np.ndarray
+    pixels: np.ndarray
+    depth: np.ndarray
+    p_cam: np.ndarray
+    J_state: np.ndarray | None = None
+    J_flange: np.ndarray | None = None
+    xy: np.ndarray | None = None
+    xy_d: np.ndarray | None = None
+    fit: MarkerFitBiasJacobians | None = None
+    d_meas_d_cam: np.ndarray | None = None
+    d_cam_d_base: np.ndarray | None = None
+
+
+def _rotated(v: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(P, 3) rows v times R: one (3, 3) for all, or (P, 3, 3) one per row."""
+    return v @ R if R.ndim == 2 else np.einsum("pi,pij->pj", v, R)
+
+
+def predict_points(
+    problem: CalibrationProblem,
+    state: HandEyeState,
+    points: np.ndarray,
+    R_F: np.ndarray,
+    t_F: np.ndarray,
+    jacobians: bool,
+    camera: bool = False,
+) -> PointPrediction:
+    """Predict marker corners seen from flange poses (R_F (3, 3) or (P, 3, 3), t_F (3,) or
+    (P, 3), base frame): points are the corners in the board frame (P, 3) (board mode) or the
+    landmark rows (P,) (landmark mode), 4 per marker; camera: with the corner bias's derivatives
+    for _camera_jacobian."""
+    R_X, t_X = state.T_flange_cam[:3, :3], state.T_flange_cam[:3, 3]
+    corners_board = rows = None
+    if state.T_base_board is not None:
         R_B, t_B = state.T_base_board[:3, :3], state.T_base_board[:3, 3]
-        corners_board = np.concatenate([m.corners_board for m in markers])
+        corners_board = points
         if problem.board_bend_m != (0.0, 0.0):
             corners_board = corners_board + np.outer(
                 _bend_shapes(problem, corners_board) @ problem.board_bend_m, [0, 0, 1]
             )
         p_base = corners_board @ R_B.T + t_B
     else:
-        rows = np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
+        rows = points
         p_base = state.landmarks_base[rows]
-    p_flange = (p_base - t_F) @ R_F
+    p_flange = _rotated(p_base - t_F, R_F)
     p_cam = (p_flange - t_X) @ R_X
     pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
     distorted = any(problem.intrinsics.dist)
@@ -161,56 +229,40 @@ def predict_frame(
     gain = float(np.exp(problem.depth_bias[0]))
     tilt = problem.depth_tilt
     depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1] + p_cam[:, :2] @ tilt)
-
-    stacked = frame.stacked
     predicted = np.concatenate([pixels.reshape(-1, 8), depth.reshape(-1, 4)], axis=1).reshape(-1)
-    residual = stacked.whitening @ (stacked.measured - predicted[stacked.rows])
     if not jacobians:
-        return FramePrediction(residual, np.empty((0, 0)), np.empty((0, 0)), pixels, depth, p_cam)
+        return PointPrediction(predicted, pixels, depth, p_cam)
 
     P = len(p_cam)
     fit = None
-    if distorted or camera_jacobian:
+    if distorted or camera:
         fit = marker_fit_bias_jacobians(p_cam.reshape(-1, 4, 3), problem.intrinsics, bias)
     d_bias_d_cam = None if bias is None else fit.d_corners_cam
     RXt = R_X.T
-    RXt_RFt = RXt @ R_F.T
+    RXt_RFt = RXt @ np.swapaxes(R_F, -1, -2)
     n = state.dim
     # d p_cam / d (perturbations), each (P, 3, k)
     d_cam_d_state = np.zeros((P, 3, n))
     d_cam_d_state[:, :, :6] = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
-    if state.T_base_board is not None:
+    if corners_board is not None:
         d_base_d_B = np.concatenate(
             [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ skew_rows(corners_board)], axis=2
         )
         d_cam_d_state[:, :, 6:12] = RXt_RFt @ d_base_d_B
     else:
-        for j, row in enumerate(rows):
-            d_cam_d_state[j, :, 6 + 3 * row : 9 + 3 * row] = RXt_RFt
+        columns = 6 + 3 * rows[:, None, None] + np.arange(3)
+        d_cam_d_state[np.arange(P)[:, None, None], np.arange(3)[:, None], columns] = RXt_RFt
     d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
     # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
     d_depth = gain * np.array([tilt[0], tilt[1], scale])
     d_meas_d_cam = np.concatenate([d_pix, np.broadcast_to(d_depth, (P, 1, 3))], axis=1)
 
-    J_state_points = _through_camera_points(d_meas_d_cam, d_cam_d_state, d_bias_d_cam)
+    J_state = _through_camera_points(d_meas_d_cam, d_cam_d_state, d_bias_d_cam)
     if state.depth_scale is not None:
-        J_state_points[:, 2, -1] = gain * p_cam[:, 2]
-    J_flange_points = _through_camera_points(d_meas_d_cam, d_cam_d_F, d_bias_d_cam)
-
-    J_camera = J_shift = None
-    if camera_jacobian:
-        J_camera, J_shift = _camera_jacobian(
-            problem, state, frame, xy, xy_d, fit, d_bias_d_cam, d_meas_d_cam, RXt_RFt, depth, p_cam
-        )
-    return FramePrediction(
-        residual,
-        _whitened_rows(stacked, J_state_points),
-        _whitened_rows(stacked, J_flange_points),
-        pixels,
-        depth,
-        p_cam,
-        J_camera,
-        J_shift,
+        J_state[:, 2, -1] = gain * p_cam[:, 2]
+    J_flange = _through_camera_points(d_meas_d_cam, d_cam_d_F, d_bias_d_cam)
+    return PointPrediction(
+        predicted, pixels, depth, p_cam, J_state, J_flange, xy, xy_d, fit, d_meas_d_cam, RXt_RFt
     )
 
 
@@ -237,22 +289,16 @@ def _camera_jacobian(
     problem: CalibrationProblem,
     state: HandEyeState,
     frame: FrameMeasurements,
-    xy: np.ndarray,
-    xy_d: np.ndarray,
-    fit: MarkerFitBiasJacobians,
-    d_bias_d_cam: np.ndarray | None,
-    d_meas_d_cam: np.ndarray,
-    d_cam_d_base: np.ndarray,
-    depth: np.ndarray,
-    p_cam: np.ndarray,
+    pred: PointPrediction,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(m, 14) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
     depth log scale, depth offset, board bend x, board bend y, depth tilt x, depth tilt y), and
-    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y); fit: the
-    derivatives of the detector's corner bias, d_bias_d_cam: fit's d_corners_cam, None without
-    distortion (no bias to move); d_meas_d_cam (P, 3, 3): d(u, v, depth)/d p_cam; d_cam_d_base
-    (3, 3); depth (P,): the predicted depths; p_cam (P, 3): the points in the camera frame."""
+    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y), from the frame's
+    point prediction (predict_points with camera)."""
     k = problem.intrinsics
+    xy, xy_d, fit, depth, p_cam = pred.xy, pred.xy_d, pred.fit, pred.depth, pred.p_cam
+    # the detector's corner bias moves with the corners only under distortion
+    d_bias_d_cam = fit.d_corners_cam if any(k.dist) else None
     P = len(xy)
     J = np.zeros((P, 3, 16))  # per point: (u, v, depth) rows; the last two: the marker's shift
     f = np.array([k.fx, k.fy])
@@ -278,7 +324,7 @@ def _camera_jacobian(
             d_shift_bend = -2.0 * problem.board_bend_m[axis] * corners_board[:, axis] / half**2
             d_base[:, :, 4 + axis] = R_B[:, axis] + np.outer(d_shift_bend, normal)
         J[:, :, [6, 7, 10, 11, 14, 15]] = _through_camera_points(
-            d_meas_d_cam, d_cam_d_base @ d_base, d_bias_d_cam
+            pred.d_meas_d_cam, pred.d_cam_d_base @ d_base, d_bias_d_cam
         )
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])

@@ -204,18 +204,17 @@ def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedN
 
 
 def _objective(
-    problem: CalibrationProblem,
-    start: HandEyeState,
-    P0: np.ndarray,
-    options: MethodOptions,
-    names: tuple[str, ...],
+    plain: BatchObjective, levels: NoiseLevels, names: tuple[str, ...]
 ) -> BatchObjective | SelfCalibrationObjective:
-    """The batch objective, with the self-calibration of names (none: the plain batch)."""
+    """The batch objective of plain's problem at levels, with the self-calibration of names (none:
+    the plain batch's)."""
+    if not names:
+        return plain.at_levels(levels)
 
     def make(p: CalibrationProblem) -> BatchObjective:
-        return BatchObjective(p, start, P0, options.prior)
+        return BatchObjective(p, plain.start, plain.P0, plain.prior)
 
-    return SelfCalibrationObjective(problem, make, names) if names else make(problem)
+    return SelfCalibrationObjective(scaled_problem(plain.problem, levels), make, names)
 
 
 @dataclass
@@ -241,16 +240,16 @@ def _vce(
     declared = declared_levels(problem)
     robot_start = levels.robot if problem.robot_noise.is_zero else problem.robot_noise
     iterations = 0
+    plain = BatchObjective(problem, start, P0, options.prior)
     while iterations < MAX_ITERATIONS:
         iterations += 1
-        scaled = scaled_problem(problem, levels)
-        objective = _objective(scaled, start, P0, options, names)
+        objective = _objective(plain, levels, names)
         x0 = np.zeros(objective.size) if params is None else params
         params, _ = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
         r, J = weighted_jacobian(objective, params, options.robust)
         hat = hat_diagonal(J, objective.layout)
         if iterations == 1:  # the rows and their groups are the same at every level
-            groups = _row_groups(objective, scaled)
+            groups = _row_groups(objective, problem)
         squares = np.minimum(r**2, HUBER_SCALE**2) / _CLIPPED_SQUARE if options.robust else r**2
         factors = {}
         for g, name in enumerate(GROUPS):
@@ -290,8 +289,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     names = group_names(problem, kept)
     theta = final.params[len(final.params) - len(names) :] if names else None
     adjusted = problem if theta is None else adjusted_problem(problem, theta, names)
-    scaled = scaled_problem(adjusted, final.levels)
-    objective = BatchObjective(scaled, start, P0, options.prior)
+    objective = BatchObjective(adjusted, start, P0, options.prior, final.levels)
     params = final.params[: objective.size]
     frame_residuals = objective.frame_residuals(params)
     if uncertainty is None:
@@ -300,7 +298,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         mount_covariance = uncertainty.mount
     prior_distance = None
     if options.prior is not None:
-        prior_distance = _prior_distance(scaled, start, P0, params, options)
+        prior_distance = _prior_distance(objective, params, options)
     return LearnedNoise(
         declared,
         final.levels,
@@ -309,7 +307,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         chi2_dof,
         first.iterations + (final.iterations if final is not first else 0),
         start.plus(params[: objective.n]),
-        outliers(scaled, frame_residuals) if options.robust else set(),
+        outliers(adjusted, frame_residuals) if options.robust else set(),
         frame_residuals,
         prior_distance,
         theta=theta,
@@ -394,8 +392,7 @@ def _nuisance_uncertainty(
 ) -> NuisanceUncertainty:
     """The covariances at final's optimum (the inverse of the normal matrix; with theta fixed, its
     state block without theta's rows and columns)."""
-    scaled = scaled_problem(problem, final.levels)
-    objective = _objective(scaled, start, P0, options, names)
+    objective = _objective(BatchObjective(problem, start, P0, options.prior), final.levels, names)
     _, J = weighted_jacobian(objective, final.params, options.robust)
     N = J.T @ J
     p = len(names)
@@ -409,18 +406,14 @@ def _nuisance_uncertainty(
     )
 
 
-def _prior_distance(
-    scaled: CalibrationProblem,
-    start: HandEyeState,
-    P0: np.ndarray,
-    params: np.ndarray,
-    options: MethodOptions,
-) -> float:
-    """Squared Mahalanobis distance of the user's prior from the data-only batch optimum."""
-    objective = BatchObjective(scaled, start, P0, None)
+def _prior_distance(with_prior: BatchObjective, params: np.ndarray, options: MethodOptions) -> float:
+    """Squared Mahalanobis distance of the user's prior from the data-only batch optimum (with_prior:
+    the objective at the learned levels)."""
+    p = with_prior
+    objective = BatchObjective(p.problem, p.start, p.P0, None, p.levels, p.declared)
     x, _ = gauss_newton(objective, params, options.robust)
     return prior_conflict(
-        start.plus(x[: objective.n]), state_covariance(objective, x, options.robust), options.prior
+        p.start.plus(x[: objective.n]), state_covariance(objective, x, options.robust), options.prior
     )
 
 

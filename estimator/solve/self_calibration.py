@@ -384,8 +384,9 @@ class SelfCalibrationObjective:
         state = objective.start.plus(x[: objective.n])
         blocks = [np.zeros((objective.n + (6 if objective.prior is not None else 0), len(theta)))]
         camera = bool(self.camera_columns) or self.shift_columns is not None
+        deltas = objective._deltas(x)
         for i, frame in enumerate(objective.problem.frames):
-            delta = objective._delta(x, i)
+            delta = None if deltas is None else deltas[i]
             pred = predict_frame(objective.problem, state, frame, delta, camera_jacobian=camera)
             columns = [pred.J_camera[:, self.camera_columns]] if self.camera_columns else []
             if self.kinematic is not None:
