@@ -170,7 +170,8 @@ def _print_trials_and_workers(folder: Path, args: argparse.Namespace) -> None:
         methods["ekf"] / methods["park"],
         f"ekf {1e3 * methods['ekf']:.1f} ms, park {1e3 * methods['park']:.1f} ms",
     )
-    _line("batch ms", 1e3 * methods["batch"], "17 views x 8 markers")
+    learned = f"{1e3 * methods['batch_learned']:.0f} ms with its noise learned (run_method)"
+    _line("batch ms", 1e3 * methods["batch"], f"17 views x 8 markers; {learned}")
     for fidelity, trials in ((MEASUREMENTS, 5 * args.worker_trials), (RENDER, args.worker_trials)):
         w = worker_speedup(folder, fidelity, trials, args.seed)
         rates = f"{w['1 worker']:.2f} and {w['2 workers']:.2f} trials/s"
