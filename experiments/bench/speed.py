@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3, help="repetitions of each timing (median)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--worker-trials", type=int, default=12, help="render trials per worker count")
+    parser.add_argument("--worker-trials", type=int, default=24, help="render trials per worker count")
     parser.add_argument(
         "--dask-trials", type=int, default=0, help="also run a Dask sweep of this many trials"
     )
