@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.lie import pose_plus_jacobian, so3_exp
+from estimator.geometry.lie import pose_plus_jacobian, pose_plus_jacobian_rows, so3_exp, so3_exp_rows
 from estimator.geometry.transforms import transform_points
 from estimator.solve.measurement_model import HandEyeState, predict_frame
 from estimator.solve.noise_levels import NoiseLevels, scaled_problem
 from estimator.solve.problem import RobotPoseNoise, build_problem
-from estimator.solve.stacked_prediction import exp_rows, plus_jacobian_rows, predict_frames, stacked_frames
+from estimator.solve.stacked_prediction import predict_frames, stacked_frames
 from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 DISTORTED = CameraIntrinsics(640, 480, 600.0, 612.0, 331.3, 228.6, (0.08, -0.2, 1e-3, -2e-3, 0.1))
@@ -67,5 +67,5 @@ def test_scaled_stack_holds_the_scaled_problems_whitening() -> None:
 def test_rows_of_rotations_and_plus_jacobians_equal_lies() -> None:
     rng = np.random.default_rng(7)
     deltas = np.vstack([rng.normal(0.0, 0.3, (4, 6)), np.r_[1.0, 2.0, 3.0, 1e-10, 0.0, -1e-10], np.zeros(6)])
-    _close(exp_rows(deltas[:, 3:]), np.array([so3_exp(d[3:]) for d in deltas]))
-    _close(plus_jacobian_rows(deltas), np.array([pose_plus_jacobian(d) for d in deltas]))
+    _close(so3_exp_rows(deltas[:, 3:]), np.array([so3_exp(d[3:]) for d in deltas]))
+    _close(pose_plus_jacobian_rows(deltas), np.array([pose_plus_jacobian(d) for d in deltas]))

@@ -45,6 +45,35 @@ def so3_exp(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(angle) / angle * W + (1.0 - np.cos(angle)) / angle**2 * W @ W
 
 
+def _rodrigues(w: np.ndarray, sine: np.ndarray, cosine: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) I + sine W + cosine W^2 for rotation vectors w (N, 3), coefficients (N,)."""
+    W = skew_rows(w)
+    return np.eye(3) + sine[:, None, None] * W + cosine[:, None, None] * (W @ W)
+
+
+def so3_exp_rows(w: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) so3_exp of each rotation vector (N, 3)."""
+    angle = np.linalg.norm(w, axis=1)
+    small = angle < SMALL_ANGLE
+    safe = np.where(small, 1.0, angle)
+    sine = np.where(small, 1.0, np.sin(safe) / safe)
+    cosine = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
+    return _rodrigues(w, sine, cosine)
+
+
+def pose_plus_jacobian_rows(delta: np.ndarray) -> np.ndarray:
+    """(N, 6, 6) pose_plus_jacobian of each perturbation (N, 6)."""
+    w = delta[:, 3:]
+    angle = np.linalg.norm(w, axis=1)
+    small = angle < SMALL_ANGLE
+    safe = np.where(small, 1.0, angle)
+    sine = np.where(small, -0.5, -(1.0 - np.cos(safe)) / safe**2)
+    cosine = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
+    J = np.broadcast_to(np.eye(6), (len(delta), 6, 6)).copy()
+    J[:, 3:, 3:] = _rodrigues(w, sine, cosine)
+    return J
+
+
 def so3_log(R: np.ndarray) -> np.ndarray:
     """(3, 3) rotation -> rotation vector (3,), radians, angle in [0, pi]."""
     return Rotation.from_matrix(R).as_rotvec()

@@ -24,6 +24,7 @@ from contextlib import AbstractContextManager
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
+from estimator.geometry.lie import pose_plus_jacobian_rows
 from estimator.solve.block_arrow import BlockLayout, global_inverse, normal_solve
 from estimator.solve.calibration import Calibration, MethodOptions, Prior, calibration_from_state
 from estimator.solve.filters import gate_threshold, initial_covariance, marker_rows
@@ -34,7 +35,6 @@ from estimator.solve.problem import CalibrationProblem
 from estimator.solve.stacked_prediction import (
     StackedFrames,
     StackedPrediction,
-    plus_jacobian_rows,
     predict_frames,
     stacked_frames,
 )
@@ -151,7 +151,7 @@ class BatchObjective:
         J[rows, : self.n] = pred.J_state @ to_params
         if self.with_robot:
             frame = self.stacked.frame_of_row
-            steps = plus_jacobian_rows(self._deltas(params))
+            steps = pose_plus_jacobian_rows(self._deltas(params))
             columns = self.n + 6 * frame[:, None] + np.arange(6)
             J[rows[:, None], columns] = np.einsum("rk,rkl->rl", pred.J_flange, steps[frame])
             delta_columns = self.n + 6 * np.arange(len(self.robot_rows))[:, None, None] + np.arange(6)

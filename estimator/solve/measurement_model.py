@@ -28,7 +28,7 @@ from estimator.geometry.marker_fit_bias import (
     marker_fit_bias,
     marker_fit_bias_jacobians,
 )
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements, StackedMeasurements
+from estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 
 @dataclass(frozen=True)
@@ -136,11 +136,7 @@ def predict_frame(
     T_base_flange = (
         frame.T_base_flange if delta_flange is None else pose_plus(frame.T_base_flange, delta_flange)
     )
-    markers = frame.markers
-    if state.T_base_board is not None:
-        points = np.concatenate([m.corners_board for m in markers])
-    else:
-        points = np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
+    points = marker_points(problem, frame.markers, state.T_base_board is not None)
     R_F, t_F = T_base_flange[:3, :3], T_base_flange[:3, 3]
     pred = predict_points(problem, state, points, R_F, t_F, jacobians, camera_jacobian)
     stacked = frame.stacked
@@ -154,8 +150,8 @@ def predict_frame(
         J_camera, J_shift = _camera_jacobian(problem, state, frame, pred)
     return FramePrediction(
         residual,
-        _whitened_rows(stacked, pred.J_state),
-        _whitened_rows(stacked, pred.J_flange),
+        whitened_point_rows(stacked.whitening, stacked.rows, pred.J_state),
+        whitened_point_rows(stacked.whitening, stacked.rows, pred.J_flange),
         pred.pixels,
         pred.depth,
         pred.p_cam,
@@ -185,6 +181,14 @@ class PointPrediction:
     fit: MarkerFitBiasJacobians | None = None
     d_meas_d_cam: np.ndarray | None = None
     d_cam_d_base: np.ndarray | None = None
+
+
+def marker_points(problem: CalibrationProblem, markers: list, board: bool) -> np.ndarray:
+    """predict_points' points of these markers (4 each, in order): their corners in the board frame
+    (4 K, 3) with board, else their landmark rows (4 K,)."""
+    if board:
+        return np.concatenate([m.corners_board for m in markers])
+    return np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
 
 
 def _rotated(v: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -329,13 +333,14 @@ def _camera_jacobian(
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
-    whitened = _whitened_rows(frame.stacked, J)
+    whitened = whitened_point_rows(frame.stacked.whitening, frame.stacked.rows, J)
     return whitened[:, :14], whitened[:, 14:]
 
 
-def _whitened_rows(stacked: StackedMeasurements, J_points: np.ndarray) -> np.ndarray:
-    """(R, n) whitened measurement rows of the frame's derivatives per point (P, 3, n): (u, v, depth)
-    of each marker's 4 corners, the markers in order."""
+def whitened_point_rows(whitening: np.ndarray, selected: np.ndarray, J_points: np.ndarray) -> np.ndarray:
+    """(R, n) whitened measurement rows of derivatives per point (P, 3, n), (u, v, depth) of each
+    marker's 4 corners, the markers in order: the per-marker layout (8 pixels, 4 depths), its
+    measured entries selected (r,), times whitening (R, r) (a frame's, or every frame's stacked)."""
     K, n = len(J_points) // 4, J_points.shape[-1]
     per_marker = np.concatenate([J_points[:, :2].reshape(K, 8, n), J_points[:, 2].reshape(K, 4, n)], axis=1)
-    return stacked.whitening @ per_marker.reshape(12 * K, n)[stacked.rows]
+    return whitening @ per_marker.reshape(12 * K, n)[selected]

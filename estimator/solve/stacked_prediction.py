@@ -9,8 +9,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import sparse
 
-from estimator.geometry.lie import SMALL_ANGLE, skew_rows
-from estimator.solve.measurement_model import HandEyeState, predict_points
+from estimator.geometry.lie import so3_exp_rows
+from estimator.solve.measurement_model import HandEyeState, marker_points, predict_points, whitened_point_rows
 from estimator.solve.problem import CalibrationProblem
 
 
@@ -49,10 +49,7 @@ class StackedFrames:
 def stacked_frames(problem: CalibrationProblem, board: bool) -> StackedFrames:
     """The problem's frames stacked; board: the points are board corners (else landmark rows)."""
     markers = [(i, m) for i, f in enumerate(problem.frames) for m in f.markers]
-    if board:
-        points = np.concatenate([m.corners_board for _, m in markers])
-    else:
-        points = np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for _, m in markers])
+    points = marker_points(problem, [m for _, m in markers], board)
     columns = [12 * k + np.arange(m.whitening.shape[1]) for k, (_, m) in enumerate(markers)]
     heights = [len(m.whitening) for _, m in markers]
     return StackedFrames(
@@ -89,47 +86,14 @@ def predict_frames(
     (None: the poses as reported)."""
     R_F, t_F = stacked.T_base_flange[:, :3, :3], stacked.T_base_flange[:, :3, 3]
     if deltas is not None:
-        R_F, t_F = R_F @ exp_rows(deltas[:, 3:]), t_F + deltas[:, :3]
+        R_F, t_F = R_F @ so3_exp_rows(deltas[:, 3:]), t_F + deltas[:, :3]
     frame = stacked.frame_of_point
     pred = predict_points(problem, state, stacked.points, R_F[frame], t_F[frame], jacobians)
     residual = stacked.whitening @ (stacked.measured - pred.predicted[stacked.selected])
     if not jacobians:
         return StackedPrediction(residual)
-    return StackedPrediction(residual, _whitened(stacked, pred.J_state), _whitened(stacked, pred.J_flange))
-
-
-def _whitened(stacked: StackedFrames, J_points: np.ndarray) -> np.ndarray:
-    """(R, n) whitened rows of derivatives per point (P, 3, n) (measurement_model._whitened_rows
-    over all frames)."""
-    K, n = len(J_points) // 4, J_points.shape[-1]
-    per_marker = np.concatenate([J_points[:, :2].reshape(K, 8, n), J_points[:, 2].reshape(K, 4, n)], axis=1)
-    return stacked.whitening @ per_marker.reshape(12 * K, n)[stacked.selected]
-
-
-def _rodrigues(w: np.ndarray, sine: np.ndarray, cosine: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) I + sine W + cosine W^2 for rotation vectors w (N, 3), coefficients (N,)."""
-    W = skew_rows(w)
-    return np.eye(3) + sine[:, None, None] * W + cosine[:, None, None] * (W @ W)
-
-
-def exp_rows(w: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) lie.so3_exp of each rotation vector (N, 3)."""
-    angle = np.linalg.norm(w, axis=1)
-    small = angle < SMALL_ANGLE
-    safe = np.where(small, 1.0, angle)
-    sine = np.where(small, 1.0, np.sin(safe) / safe)
-    cosine = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
-    return _rodrigues(w, sine, cosine)
-
-
-def plus_jacobian_rows(delta: np.ndarray) -> np.ndarray:
-    """(N, 6, 6) lie.pose_plus_jacobian of each perturbation (N, 6)."""
-    w = delta[:, 3:]
-    angle = np.linalg.norm(w, axis=1)
-    small = angle < SMALL_ANGLE
-    safe = np.where(small, 1.0, angle)
-    sine = np.where(small, -0.5, -(1.0 - np.cos(safe)) / safe**2)
-    cosine = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
-    J = np.broadcast_to(np.eye(6), (len(delta), 6, 6)).copy()
-    J[:, 3:, 3:] = _rodrigues(w, sine, cosine)
-    return J
+    return StackedPrediction(
+        residual,
+        whitened_point_rows(stacked.whitening, stacked.selected, pred.J_state),
+        whitened_point_rows(stacked.whitening, stacked.selected, pred.J_flange),
+    )
