@@ -11,7 +11,7 @@ from estimator.io.calibration_file import CalibrationFileError
 from estimator.io.dataset import DatasetError
 from estimator.observe.observations import ObservationCacheError
 from estimator.solve.problem import CalibrationInputError
-from estimator.targets.board import BoardDefinitionError
+from estimator.targets.target import BoardDefinitionError
 from experiments import arguments
 from experiments import export as export_command
 from experiments import plan as plan_command

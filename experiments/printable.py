@@ -11,7 +11,8 @@ import numpy as np
 from PIL import Image
 
 from estimator.io.files import write_atomic
-from estimator.targets.board import BoardDefinition, board_image, find_board, save_board
+from estimator.targets.board import BoardDefinition, board_image
+from estimator.targets.kinds import find_board, save_board
 
 SCALE_BAR_M = 0.1
 MIN_MODULE_PX = 4  # a QR module drawn narrower than this prints too coarse to keep its corners exact

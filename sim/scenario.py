@@ -18,7 +18,8 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_rpy
 from estimator.io.models import models_dir
 from estimator.io.tomlfile import Section, read_toml, validation_problems
-from estimator.targets.board import BoardDefinition, find_board
+from estimator.targets.board import BoardDefinition
+from estimator.targets.kinds import find_board
 
 Vector3 = tuple[float, float, float]
 

@@ -24,7 +24,7 @@ from estimator.observe.observations import (
     observe_dataset,
     with_pixel_floor,
 )
-from estimator.targets.board import find_board
+from estimator.targets.kinds import find_board
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.qr_fit import center_from_corners
 from tests.conftest import TEST_SEED

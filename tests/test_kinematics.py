@@ -10,7 +10,7 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.kinematics import ROBOTS, forward, jacobian, solve_ik
 from estimator.geometry.transforms import invert, make_transform, pose_error
 from estimator.io.models import models_dir
-from estimator.targets.board import load_board
+from estimator.targets.kinds import load_board
 from sim.scene import ARM_PREFIX, build_cell
 
 

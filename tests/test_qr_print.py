@@ -16,9 +16,11 @@ from qrcode.util import MODE_8BIT_BYTE, QRData
 from estimator.io.dataset import Dataset, load_dataset
 from estimator.observe.grading import grade_observations
 from estimator.observe.observations import dataset_depth_noise, observe_dataset, observe_frame
-from estimator.targets.board import BoardDefinition, BoardDefinitionError, find_board, load_board
+from estimator.targets.board import BoardDefinition
+from estimator.targets.kinds import find_board, load_board
 from estimator.targets.qr import DetectorSettings, QRDetector
 from estimator.targets.qr_symbol import SymbolSpec, read_format
+from estimator.targets.target import BoardDefinitionError
 from experiments.cli import main
 from tests.conftest import TEST_SEED
 

@@ -9,7 +9,7 @@ import pytest
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.io.dataset import Capture, DatasetError, DatasetRecorder, Frame, load_dataset
-from estimator.targets.board import find_board
+from estimator.targets.kinds import find_board
 
 INTRINSICS = CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
 

@@ -12,7 +12,7 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_quat
 from estimator.io.dataset import DatasetWriter, Frame, GroundTruth, load_dataset
 from estimator.io.memory import dataset_in_memory
-from estimator.targets.board import find_board
+from estimator.targets.kinds import find_board
 from experiments.sweep.config import load_config
 from experiments.sweep.runner import same_rows
 from experiments.sweep.trials import run_trial, tasks_for

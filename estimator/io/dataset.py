@@ -48,7 +48,9 @@ from estimator.io.files import open_text, write_atomic
 from estimator.io.jsonfile import first_field_difference, read_json_object
 from estimator.io.lock import acquire_lock, release_lock, remove_dead_partials
 from estimator.io.png import write_png
-from estimator.targets.board import BoardDefinition, BoardDefinitionError, load_board
+from estimator.targets.board import BoardDefinition
+from estimator.targets.kinds import load_board
+from estimator.targets.target import BoardDefinitionError
 
 FORMAT = "hec-dataset"
 VERSION = 1

@@ -32,7 +32,9 @@ from estimator.io.files import write_atomic
 from estimator.io.jsonfile import read_json_object
 from estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
 from estimator.targets.detection import BLURRED_SHARPNESS, MarkerDetection, Rejection
-from estimator.targets.qr import DetectorSettings, QRDetector
+from estimator.targets.kinds import detector_for
+from estimator.targets.qr import DetectorSettings
+from estimator.targets.target import TargetDetector
 
 CACHE_FILE = "detections.json"
 CACHE_FORMAT = "hec-detections"
@@ -96,7 +98,7 @@ def depth_problem(depth_m: np.ndarray | None, intrinsics: CameraIntrinsics) -> s
 
 
 def observe_frame(
-    index: int, frame: Frame, detector: QRDetector, depth_noise: DepthNoiseModel
+    index: int, frame: Frame, detector: TargetDetector, depth_noise: DepthNoiseModel
 ) -> FrameObservations:
     """Detect the markers of one frame and turn them into observations."""
     obs = FrameObservations(index, frame.time_s, np.asarray(frame.T_base_flange, dtype=np.float64))
@@ -246,7 +248,7 @@ def observe_dataset(
     """Observations of every frame; a frame whose files cannot be read is kept with its problem.
     progress, if given, is called after each frame with its observations and the frame
     (None when it could not be read)."""
-    detector = QRDetector(dataset.board, settings)
+    detector = detector_for(dataset.board, settings)
     noise = depth_noise or dataset_depth_noise(dataset)
     observations = []
     for i, row in enumerate(dataset.rows):
@@ -380,11 +382,17 @@ def load_observations(
     return frames, cached_settings, depth_noise
 
 
+def _field(marker: dict, f: Field) -> object:
+    """A cached marker's field; a field that defaults to None may be absent (caches written
+    before it existed)."""
+    return marker.get(f.name) if f.default is None else marker[f.name]
+
+
 def _frame_from_dict(f: dict) -> FrameObservations:
     markers = [
         MarkerObservation(
             **{
-                f.name: _finite(f.name, m[f.name]) if _is_array_field(f) else m[f.name]
+                f.name: _finite(f.name, _field(m, f)) if _is_array_field(f) else _field(m, f)
                 for f in fields(MarkerObservation)
             }
         )

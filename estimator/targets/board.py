@@ -16,24 +16,16 @@ bottom-left of the upright symbol (finder patterns at corners 0, 1 and 3).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
-from estimator.io.models import models_dir
 from estimator.targets.qr_symbol import ERROR_CORRECTION, SymbolSpec
+from estimator.targets.target import BoardDefinitionError
 
 # Corner offsets of an upright marker, in units of its side, board frame (x right, y up).
 _CORNER_OFFSETS = np.array([[-0.5, 0.5], [0.5, 0.5], [0.5, -0.5], [-0.5, -0.5]])
 QUIET_ZONE_MODULES = 4
-
-
-class BoardDefinitionError(ValueError):
-    """A board definition file is missing a field or has a bad value."""
 
 
 @dataclass(frozen=True)
@@ -51,9 +43,26 @@ class BoardDefinition:
     marker_centers_m: dict[int, tuple[float, float]]
     marker_symbols: dict[int, SymbolSpec] = field(default_factory=dict)
 
+    kind = "qr"
+    points_per_marker = 4
+
     @property
     def marker_ids(self) -> list[int]:
         return sorted(self.marker_centers_m)
+
+    @property
+    def feature_m(self) -> float:
+        """The smallest module: the marker side over its symbol's module count."""
+        return self.marker_size_m / self.modules
+
+    @property
+    def visible_margin_m(self) -> float:
+        """Two modules of quiet zone (what the decoders need to find a symbol)."""
+        return 2 * self.feature_m
+
+    def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
+        """The sheet as an (H, W) uint8 image (board_image)."""
+        return board_image(self, px_per_m, supersample)
 
     @property
     def modules(self) -> int:
@@ -121,6 +130,7 @@ class BoardDefinition:
         d = {
             "format": "hec-board",
             "version": 1,
+            "kind": self.kind,
             "name": self.name,
             "size_m": list(self.size_m),
             "marker_size_m": self.marker_size_m,
@@ -260,13 +270,6 @@ def _kind_name(kind: type | tuple[type, ...]) -> str:
     return " or ".join(names.get(k, k.__name__) for k in kinds)
 
 
-def load_board(path: str | Path) -> BoardDefinition:
-    """Read a board definition file; errors name the file and the field."""
-    path = Path(path)
-    data = read_json_object(path, BoardDefinitionError, "board definition file not found")
-    return BoardDefinition.from_dict(data, source=str(path))
-
-
 def board_image(board: BoardDefinition, px_per_m: float, supersample: int = 4) -> np.ndarray:
     """Render the sheet as a (H, W) uint8 image, white with black modules.
 
@@ -296,14 +299,3 @@ def board_image(board: BoardDefinition, px_per_m: float, supersample: int = 4) -
         dark[np.ix_(rr, cc)] |= modules[np.ix_(mr[rr], mc[cc])]
     coverage = dark.reshape(H, ss, W, ss).mean(axis=(1, 3))
     return np.round(255.0 * (1.0 - coverage)).astype(np.uint8)
-
-
-def save_board(board: BoardDefinition, path: str | Path) -> Path:
-    """Write a board definition file (through a temporary name, so no half-written file is left)."""
-    return write_atomic(Path(path), json.dumps(board.to_dict(), indent=2) + "\n")
-
-
-def find_board(name: str, base_dir: Path = Path(".")) -> BoardDefinition:
-    """A board named in models/boards/ (without .json), else a JSON path relative to base_dir."""
-    named = models_dir() / "boards" / f"{name}.json"
-    return load_board(named if named.is_file() else base_dir / name)

@@ -18,14 +18,16 @@ BLURRED_SHARPNESS = 20.0
 
 @dataclass(frozen=True)
 class MarkerDetection:
-    """One board marker found in an image.
+    """One board marker found in an image: a QR code or tag (P = 4 corners) or a single
+    chessboard corner (P = 1), see estimator.targets.target.
 
-    corners_px: (4, 2) in the marker's order; corners_cov: (8, 8) over (u0, v0, ..., v3),
-    pixels^2. center_px: (2,) the symbol centre; center_cov: (2, 2). quality: correlation
-    of the aligned code with the image (0..1). module_agreement: fraction of modules
-    that read as the code says. noise_sigma: image noise, grey levels. found_by:
-    "backend@scale" of the first pass that decoded it. raw_corners_px: (4, 2) the
-    decoder's corners, reordered.
+    corners_px: (P, 2) in the marker's order; corners_cov: (2P, 2P) over (u0, v0, ...),
+    pixels^2. center_px: (2,) the marker centre (the point itself when P is 1); center_cov:
+    (2, 2). quality: how well the image matches the target there (0..1). module_agreement:
+    fraction of modules (QR) or bits (tags) that read as the target says, 1 without any.
+    noise_sigma: image noise, grey levels. found_by: what found it ("backend@scale" for QR).
+    raw_corners_px: (P, 2) the points before refinement. depth_region_px: (k, 2) convex
+    polygon whose depth pixels the depth plane is fitted to; None: the corners' own polygon.
     """
 
     marker_id: int
@@ -38,6 +40,7 @@ class MarkerDetection:
     noise_sigma: float
     found_by: str
     raw_corners_px: np.ndarray
+    depth_region_px: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,8 @@ from estimator.io.dataset import Dataset, load_dataset
 from estimator.observe.grading import grade_observations, true_T_cam_board
 from estimator.observe.observations import dataset_depth_noise, observe_frame
 from estimator.targets.detection import to_gray
-from estimator.targets.qr import DetectorSettings, QRDetector
+from estimator.targets.kinds import detector_for
+from estimator.targets.qr import DetectorSettings
 from estimator.targets.qr_decode import decode_qr
 from sim.scenario import load_scenario, scenario_from_dict
 from sim.simulate import simulate
@@ -71,7 +72,7 @@ def _decode_rate(dataset: Dataset, spec: str, grays: list[np.ndarray]) -> tuple[
 
 
 def _combined(dataset: Dataset) -> dict:
-    detector = QRDetector(dataset.board, DetectorSettings())
+    detector = detector_for(dataset.board)
     noise = dataset_depth_noise(dataset)
     detect_ms, observe_ms, observations = [], [], []
     for i in range(len(dataset)):
@@ -93,7 +94,7 @@ def _combined(dataset: Dataset) -> dict:
 
 def _floors(dataset: Dataset) -> tuple[float, float]:
     """RMS per coordinate of refined corners and centres on noise-free renders (image noise ~0)."""
-    detector = QRDetector(dataset.board)
+    detector = detector_for(dataset.board)
     noise = dataset_depth_noise(dataset)
     observations = [observe_frame(i, dataset.frame(i), detector, noise) for i in range(len(dataset))]
     errors = grade_observations(observations, dataset.ground_truth, dataset.board, dataset.intrinsics)

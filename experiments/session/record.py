@@ -317,7 +317,7 @@ def _record_sim_adaptive(
 def _record_hardware(
     args: argparse.Namespace, camera_context: object | None, read_line: Callable[[str], str] | None
 ) -> int:
-    from estimator.targets.board import find_board
+    from estimator.targets.kinds import find_board
     from hardware.cell import HardwareCell, plan_moves
     from hardware.realsense import RealSenseCamera
 

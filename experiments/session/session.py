@@ -31,7 +31,8 @@ from estimator.solve.calibration import Calibration, MethodOptions
 from estimator.solve.methods import DEFAULT_METHOD, run_method
 from estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
 from estimator.targets.board import BoardDefinition
-from estimator.targets.qr import DetectorSettings, QRDetector
+from estimator.targets.kinds import detector_for
+from estimator.targets.qr import DetectorSettings
 from experiments.session.plot import PLOT_FILE, plot_convergence
 from hardware.realsense import CameraError
 from hardware.ur_robot import RobotError
@@ -93,7 +94,7 @@ class LiveEstimate:
         self.depth_noise = dataset_depth_noise(dataset)
         self.robot_noise = dataset_robot_noise(dataset)
         self.settings = DetectorSettings()
-        self.detector = QRDetector(dataset.board, self.settings)
+        self.detector = detector_for(dataset.board, self.settings)
         self.method = method
         self.target_sigma = target_sigma
         self.latest: Calibration | None = None

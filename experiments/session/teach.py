@@ -20,8 +20,8 @@ import numpy as np
 import pyrealsense2 as rs
 
 from estimator.geometry.waypoints import JOINT_COLUMNS, WaypointFileError
-from estimator.targets.board import BoardDefinitionError, find_board
-from estimator.targets.qr import DetectorSettings, QRDetector
+from estimator.targets.kinds import detector_for, find_board
+from estimator.targets.target import BoardDefinitionError, TargetDetector
 from experiments.session.cell_config import CellConfigError, load_cell_config
 from hardware.realsense import CameraError, RealSenseCamera
 from hardware.ur_robot import RobotError, URRobot
@@ -74,7 +74,7 @@ def run(
         host = config.robot_host(args.robot)
         stored_before = _existing_waypoints(args.out, args.append)
         board = find_board(config.board)
-        detector = QRDetector(board, DetectorSettings())
+        detector = detector_for(board)
         count = stored_before
         with config.open_robot(host) as robot:
             with RealSenseCamera(config.camera_settings(args.camera), camera_context) as camera:
@@ -134,7 +134,7 @@ def _next_pose(read_line: Callable[[str], str]) -> bool:
 def _store_pose(
     robot: URRobot,
     camera: RealSenseCamera,
-    detector: QRDetector,
+    detector: TargetDetector,
     marker_ids: list[int],
     args: argparse.Namespace,
     number: int,
