@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import Capture, DatasetError, DatasetRecorder, Frame, load_dataset
+from estimator.io.dataset import Capture, DatasetError, Frame, load_dataset
+from estimator.io.recorder import DatasetRecorder
 from estimator.targets.kinds import find_board
 
 INTRINSICS = CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from estimator.geometry.waypoints import write_waypoint_file
-from estimator.io.dataset import Capture, DatasetRecorder, load_dataset
+from estimator.io.dataset import Capture, load_dataset
 from estimator.io.lock import LOCK_FILE, FolderLockedError
+from estimator.io.recorder import DatasetRecorder
 from estimator.observe.observations import (
     FrameObservations,
     ObservationCacheError,

@@ -24,8 +24,8 @@ folder a person can open without this project::
 
 Depth is aligned to the colour image and shares its intrinsics. A rendered dataset (DatasetWriter)
 is written into a temporary sibling folder and renamed into place when it is complete, so a failed
-run never leaves a folder that looks finished. A recorded session (DatasetRecorder) is written in
-place frame by frame, so an interruption keeps every frame captured before it; dataset.json
+run never leaves a folder that looks finished. A recorded session (estimator.io.recorder) is
+written in place frame by frame, so an interruption keeps every frame captured before it; dataset.json
 'recording' says whether it is 'in progress', 'interrupted' or 'complete'.
 """
 
@@ -45,12 +45,11 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
 from estimator.io.depth_png import decode_depth, encode_depth
 from estimator.io.files import open_text, write_atomic
-from estimator.io.jsonfile import first_field_difference, read_json_object
-from estimator.io.lock import acquire_lock, release_lock, remove_dead_partials
+from estimator.io.jsonfile import read_json_object
+from estimator.io.lock import remove_dead_partials
 from estimator.io.png import write_png
-from estimator.targets.board import BoardDefinition
 from estimator.targets.kinds import load_board
-from estimator.targets.target import BoardDefinitionError
+from estimator.targets.target import BoardDefinitionError, Target
 
 FORMAT = "hec-dataset"
 VERSION = 1
@@ -122,7 +121,7 @@ def _matrix(T: np.ndarray) -> list[list[float]]:
     return [[float(v) for v in row] for row in T]
 
 
-def _dump_json(path: Path, data: dict) -> None:
+def dump_json(path: Path, data: dict) -> None:
     write_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
@@ -135,7 +134,7 @@ class DatasetWriter:
         self,
         out_dir: str | Path,
         intrinsics: CameraIntrinsics,
-        board: BoardDefinition,
+        board: Target,
         depth_scale_m: float,
         source: str,
         force: bool = False,
@@ -166,7 +165,7 @@ class DatasetWriter:
     def add_frame(self, frame: Frame) -> int:
         """Write one frame's images now and keep its row; returns the frame number."""
         index = len(self.rows)
-        self.rows.append(_write_frame_files(self.tmp_dir, index, frame, self.intrinsics, self.depth_scale_m))
+        self.rows.append(write_frame_files(self.tmp_dir, index, frame, self.intrinsics, self.depth_scale_m))
         return index
 
     def finish(self, ground_truth: GroundTruth | None = None, extra: dict | None = None) -> Path:
@@ -175,11 +174,11 @@ class DatasetWriter:
             writer = csv.writer(f, lineterminator="\n")
             writer.writerow(FRAME_COLUMNS)
             writer.writerows(self.rows)
-        _dump_json(self.tmp_dir / "board.json", self.board.to_dict())
+        dump_json(self.tmp_dir / "board.json", self.board.to_dict())
         if ground_truth is not None:
-            _dump_json(self.tmp_dir / "ground_truth.json", _ground_truth_dict(ground_truth))
+            dump_json(self.tmp_dir / "ground_truth.json", ground_truth_dict(ground_truth))
         meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
-        _dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
+        dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
         if self.out_dir.exists():
             trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
             self.out_dir.rename(trash)
@@ -190,138 +189,7 @@ class DatasetWriter:
         return self.out_dir
 
 
-class DatasetRecorder:
-    """Write a recorded session straight into ``out_dir``, frame by frame: images first,
-    then the frames.csv row (flushed to disk), then dataset.json with the new count, so an
-    interruption loses nothing captured before it. ``resume=True`` reopens such a folder
-    (same camera intrinsics, depth scale, board and source, or DatasetError) and appends.
-
-    extra: more dataset.json fields; ground_truth (simulation): the cell's truth, its
-    per-frame lists filled by add_frame; fixed: keys of extra a resumed session must share.
-    """
-
-    def __init__(
-        self,
-        out_dir: str | Path,
-        intrinsics: CameraIntrinsics,
-        board: BoardDefinition,
-        depth_scale_m: float,
-        source: str,
-        extra: dict | None = None,
-        ground_truth: GroundTruth | None = None,
-        resume: bool = False,
-        fixed: tuple[str, ...] = (),
-    ) -> None:
-        self.root = Path(out_dir)
-        self.fixed = fixed
-        self.notes: list[str] = []  # said to the user: a stale lock taken over
-        self.intrinsics, self.board, self.depth_scale_m = intrinsics, board, depth_scale_m
-        self.source, self.extra = source, dict(extra or {})
-        self.ground_truth = ground_truth
-        self.rows: list[dict] = []
-        try:
-            if resume:
-                self._reopen()
-            else:
-                self._create()
-        except BaseException:  # a session that could not start leaves no lock
-            release_lock(self.root)
-            raise
-
-    def __enter__(self) -> DatasetRecorder:
-        return self
-
-    def __exit__(self, *_: object) -> None:
-        release_lock(self.root)  # however the session ended (finish unlocks too)
-
-    def _create(self) -> None:
-        if self.root.exists():
-            raise FileExistsError(
-                f"{self.root} already exists; add --resume to continue that session, or choose another --out"
-            )
-        self.root.mkdir(parents=True)
-        acquire_lock(self.root, "a recording")
-        for sub in ("rgb", "depth", "depth_samples"):
-            (self.root / sub).mkdir()
-        _dump_json(self.root / "board.json", self.board.to_dict())
-        with open_text(self.root / "frames.csv", "w") as f:
-            csv.writer(f, lineterminator="\n").writerow((*FRAME_COLUMNS, *SESSION_COLUMNS))
-        self._write_metadata("in progress")
-
-    def _reopen(self) -> None:
-        """Check that the folder holds a session of this camera and board, drop a frames.csv
-        line cut short by the interruption, and read the frames recorded so far."""
-        meta_path = self.root / "dataset.json"
-        meta = read_json_object(meta_path, DatasetError, "missing: nothing to resume here")
-        stale = acquire_lock(self.root, "a recording")
-        if stale is not None:
-            self.notes.append(stale)
-        now = dict(camera=self.intrinsics.to_dict(), depth_scale_m=self.depth_scale_m, source=self.source)
-        unrecorded = [key for key in self.fixed if key in self.extra and key not in meta]  # older hec: none
-        self.notes += [f"{meta_path} has no '{key}' (an older recording): not checked" for key in unrecorded]
-        now |= {key: self.extra.get(key) for key in self.fixed if key not in unrecorded}
-        if (difference := first_field_difference(meta, now)) is not None:
-            raise DatasetError(f"{meta_path}: cannot resume, {difference}")
-        if load_board(self.root / "board.json").to_dict() != self.board.to_dict():
-            raise DatasetError(f"{self.root / 'board.json'}: cannot resume, the board is another one")
-        frames_path = self.root / "frames.csv"
-        text = frames_path.read_text()
-        if not text.endswith("\n"):
-            text = text[: text.rfind("\n") + 1]
-            frames_path.write_text(text)
-        with open(frames_path, newline="") as f:
-            header = next(csv.reader(f))
-        if tuple(header) != (*FRAME_COLUMNS, *SESSION_COLUMNS):
-            raise DatasetError(f"{frames_path}: not written by a recorded session; cannot resume it")
-        self.rows = _read_frames(frames_path)
-        if self.ground_truth is not None and self.rows:
-            truth = _read_ground_truth(self.root / "ground_truth.json")
-            self.ground_truth.T_base_flange[:] = truth.T_base_flange[: len(self.rows)]
-            self.ground_truth.joints[:] = truth.joints[: len(self.rows)]
-        self._write_metadata("in progress")
-
-    @property
-    def recorded_waypoints(self) -> set[int]:
-        return {row["waypoint"] for row in self.rows}
-
-    def add_frame(self, capture: Capture, waypoint: int) -> int:
-        """Write one captured view of waypoint (its index) now; returns its frame number."""
-        index = len(self.rows)
-        row = _write_frame_files(self.root, index, capture.frame, self.intrinsics, self.depth_scale_m)
-        samples_name = ""
-        if capture.depth_samples is not None:
-            samples_name = f"depth_samples/{index:06d}.png"
-            write_png(self.root / samples_name, np.asarray(capture.depth_samples, dtype=np.uint8))
-        if self.ground_truth is not None:
-            if capture.true_T_base_flange is None or capture.true_joints is None:
-                raise DatasetError("a simulated session's capture must carry its true pose and joints")
-            self.ground_truth.T_base_flange.append(capture.true_T_base_flange)
-            self.ground_truth.joints.append(capture.true_joints)
-            write_atomic(self.root / "ground_truth.json", json.dumps(_ground_truth_dict(self.ground_truth)))
-        with open_text(self.root / "frames.csv", "a") as f:
-            csv.writer(f, lineterminator="\n").writerow([*row, str(waypoint), samples_name])
-            f.flush()
-            os.fsync(f.fileno())
-        self.rows.append({"frame": index, "waypoint": waypoint})
-        self._write_metadata("in progress")
-        return index
-
-    def finish(self, state: str, extra: dict | None = None) -> Path:
-        """Write dataset.json once more with the session's end state ('complete' or
-        'interrupted') and any more fields, and unlock the folder."""
-        self.extra |= extra or {}
-        self._write_metadata(state)
-        release_lock(self.root)
-        return self.root
-
-    def _write_metadata(self, state: str) -> None:
-        truth = self.ground_truth if self.rows else None  # its file is written with the first frame
-        meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), truth)
-        text = json.dumps(meta | self.extra | {"recording": state}, indent=2) + "\n"
-        write_atomic(self.root / "dataset.json", text)
-
-
-def _write_frame_files(
+def write_frame_files(
     root: Path, index: int, frame: Frame, intrinsics: CameraIntrinsics, depth_scale_m: float
 ) -> list[str]:
     """Check the frame against the intrinsics, write its images under root and return its
@@ -341,7 +209,7 @@ def _write_frame_files(
     return [str(index), repr(float(frame.time_s)), rgb_name, depth_name, *(repr(float(v)) for v in values)]
 
 
-def _ground_truth_dict(truth: GroundTruth) -> dict:
+def ground_truth_dict(truth: GroundTruth) -> dict:
     data = {
         "T_flange_cam": _matrix(truth.T_flange_cam),
         "T_base_board": _matrix(truth.T_base_board),
@@ -386,7 +254,7 @@ class Dataset:
     root: Path
     metadata: dict
     intrinsics: CameraIntrinsics
-    board: BoardDefinition
+    board: Target
     depth_scale_m: float
     rows: list[dict]
     ground_truth: GroundTruth | None
@@ -444,18 +312,18 @@ def load_dataset(path: str | Path) -> Dataset:
         board = load_board(root / meta.get("board_file", "board.json"))
     except BoardDefinitionError as exc:
         raise DatasetError(str(exc)) from None
-    rows = _read_frames(root / meta.get("frames_file", "frames.csv"))
+    rows = read_frames(root / meta.get("frames_file", "frames.csv"))
     if len(rows) != meta.get("frame_count"):
         raise DatasetError(
             f"{meta_path}: 'frame_count' is {meta.get('frame_count')} but frames.csv has {len(rows)} rows"
         )
     truth = None
     if meta.get("ground_truth_file"):
-        truth = _read_ground_truth(root / meta["ground_truth_file"])
+        truth = read_ground_truth(root / meta["ground_truth_file"])
     return Dataset(root, meta, intrinsics, board, depth_scale, rows, truth)
 
 
-def _read_ground_truth(path: Path) -> GroundTruth:
+def read_ground_truth(path: Path) -> GroundTruth:
     gt = read_json_object(path, DatasetError)
     try:
         return GroundTruth(
@@ -470,7 +338,7 @@ def _read_ground_truth(path: Path) -> GroundTruth:
         raise DatasetError(f"{path}: missing field {exc}") from None
 
 
-def _read_frames(path: Path) -> list[dict]:
+def read_frames(path: Path) -> list[dict]:
     if not path.is_file():
         raise DatasetError(f"{path}: file missing")
     with open(path, newline="") as f:

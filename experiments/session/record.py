@@ -32,9 +32,10 @@ from estimator.geometry.waypoints import (
     read_waypoint_file,
     waypoints_fingerprint,
 )
-from estimator.io.dataset import DatasetError, DatasetRecorder, GroundTruth
+from estimator.io.dataset import DatasetError, GroundTruth
 from estimator.io.jsonfile import read_json_object
 from estimator.io.lock import FolderLockedError
+from estimator.io.recorder import DatasetRecorder
 from estimator.solve.methods import DEFAULT_METHOD, METHODS
 from estimator.solve.verify import spread_views
 from experiments import arguments

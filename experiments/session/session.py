@@ -18,7 +18,8 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
-from estimator.io.dataset import Capture, DatasetRecorder, Frame, load_dataset
+from estimator.io.dataset import Capture, Frame, load_dataset
+from estimator.io.recorder import DatasetRecorder
 from estimator.observe.corner_noise import learn_corner_floor
 from estimator.observe.observations import (
     FrameObservations,
@@ -30,9 +31,9 @@ from estimator.observe.observations import (
 from estimator.solve.calibration import Calibration, MethodOptions
 from estimator.solve.methods import DEFAULT_METHOD, run_method
 from estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
-from estimator.targets.board import BoardDefinition
 from estimator.targets.kinds import detector_for
 from estimator.targets.qr import DetectorSettings
+from estimator.targets.target import Target
 from experiments.session.plot import PLOT_FILE, plot_convergence
 from hardware.realsense import CameraError
 from hardware.ur_robot import RobotError
@@ -50,7 +51,7 @@ class SessionCell(Protocol):
 
     source: str
     intrinsics: CameraIntrinsics
-    board: BoardDefinition
+    board: Target
     depth_scale_m: float
 
     def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]: ...
