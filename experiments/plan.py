@@ -38,7 +38,7 @@ from estimator.solve.view_planning import (
     reachable,
     view_informations,
 )
-from estimator.targets.board import BoardDefinition
+from estimator.targets.target import Target
 from experiments import arguments
 
 if TYPE_CHECKING:
@@ -121,7 +121,7 @@ class PlanningCell:
     ((4, 4), metres), a frame's noise, the nominal distance to the board (m), accepts (True when the
     arm can take a view from the last view accepted) and the views to compare with (name, waypoints)."""
 
-    board: BoardDefinition
+    board: Target
     intrinsics: CameraIntrinsics
     T_flange_cam: np.ndarray
     T_base_board: np.ndarray

@@ -11,7 +11,7 @@ import numpy as np
 
 from estimator.geometry.waypoints import PlannedMove, Waypoint
 from estimator.io.dataset import Capture, Frame
-from estimator.targets.board import BoardDefinition
+from estimator.targets.target import Target
 from hardware.realsense import RealSenseCamera
 from hardware.ur_robot import RobotError, URRobot
 
@@ -63,7 +63,7 @@ class HardwareCell:
         self,
         robot: URRobot,
         camera: RealSenseCamera,
-        board: BoardDefinition,
+        board: Target,
         inverse: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
         pose_frame: str = "flange",
     ) -> None:

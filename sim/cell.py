@@ -29,8 +29,8 @@ from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
 # Simulated timing: joint speed while moving and the settle time at each waypoint.
 JOINT_SPEED_RAD_S = 0.5
 SETTLE_S = 1.0
-# QR modules narrower than this in the image do not decode (measured: 8/8 markers at 2.2 px,
-# 7/8 at 2.0, 1/8 at 1.7 on the default board).
+# QR modules (or any board's smallest features) narrower than this in the image do not decode
+# (measured: 8/8 QR markers at 2.2 px, 7/8 at 2.0, 1/8 at 1.7 on the default board).
 MIN_MODULE_PX = 2.0
 
 
@@ -210,7 +210,9 @@ class SimCell:
             | (uv[:, 1] > k.height - 0.5 - m)
         )
         if np.any(outside):
-            ids = sorted({self.board.marker_ids[i // 4] for i in np.nonzero(outside)[0]})
+            ids = sorted(
+                {self.board.marker_ids[i // self.board.points_per_marker] for i in np.nonzero(outside)[0]}
+            )
             return f"markers {ids} are not inside the image with a {m:g} px margin"
         hidden = self._hidden_corners(corners)
         if hidden:
@@ -219,12 +221,14 @@ class SimCell:
         return None
 
     def smallest_module_px(self) -> float:
-        """The width in pixels of a QR module where the board shows it smallest in the image
-        (shortest marker side over the modules per side): below MIN_MODULE_PX nothing decodes."""
+        """The width in pixels of the board's smallest feature (a QR module, a tag bit, a square:
+        board.feature_m) where the image shows it smallest, along the board's x or y at any of
+        its points: below MIN_MODULE_PX nothing decodes."""
         T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
-        uv = project(T_cam_board, self._true_corners, self.camera.intrinsics).reshape(-1, 4, 2)
-        sides = np.linalg.norm(uv - np.roll(uv, 1, axis=1), axis=2)
-        return float(sides.min()) / self.board.modules
+        step = self.board.feature_m * np.eye(3)[:2]
+        points = self._true_corners[:, None, :] + np.concatenate([np.zeros((1, 3)), step])[None]
+        uv = project(T_cam_board, points.reshape(-1, 3), self.camera.intrinsics).reshape(-1, 3, 2)
+        return float(np.linalg.norm(uv[:, 1:] - uv[:, :1], axis=2).min())
 
     def _hidden_corners(self, corners_board: np.ndarray) -> dict[int, str]:
         """Markers with a corner whose line of sight hits something else first: ID -> what."""
@@ -241,7 +245,9 @@ class SimCell:
                 self.model, self.data, origin, ray / distance, None, 1, self._camera_body, geom_id
             )
             if hit >= 0 and hit < distance - 1e-3 and geom_id[0] != self._board_geom:
-                hidden.setdefault(self.board.marker_ids[i // 4], self._geom_label(geom_id[0]))
+                hidden.setdefault(
+                    self.board.marker_ids[i // self.board.points_per_marker], self._geom_label(geom_id[0])
+                )
         return hidden
 
     def _collision(self) -> str | None:

@@ -15,6 +15,7 @@ from estimator.geometry.kinematics import ROBOTS, URKinematics
 from estimator.geometry.lie import so3_exp
 from estimator.geometry.transforms import make_transform
 from estimator.targets.board import BoardDefinition
+from estimator.targets.target import Target
 from sim.scenario import ArmErrors, BoardErrors, Scenario
 
 
@@ -24,7 +25,7 @@ class PrintedBoard:
     it (before scaling), the sheet is then scaled by scale (sx, sy) about its centre and bent by
     bend_m (bx, by): z = bx (1 - u^2) + by (1 - v^2), u = 2 x / width, v = 2 y / height."""
 
-    printed: BoardDefinition
+    printed: Target
     scale: tuple[float, float] = (1.0, 1.0)
     bend_m: tuple[float, float] = (0.0, 0.0)
 
@@ -46,7 +47,7 @@ class PrintedBoard:
         return self.bend_m[0] * (1.0 - u * u) + self.bend_m[1] * (1.0 - v * v)
 
     def true_corners(self) -> np.ndarray:
-        """(M, 4, 3) every marker's corners where they really are, in the board frame (the
+        """(M, P, 3) every marker's points where they really are, in the board frame (the
         definition's marker order and corner order), metres."""
         corners = self.printed.all_corners()
         return self.to_board_frame(corners.reshape(-1, 3)).reshape(corners.shape)
@@ -79,10 +80,17 @@ class TrueCell:
             "board": {
                 "scale": list(self.board.scale),
                 "bend_m": list(self.board.bend_m),
-                "marker_centers_m": {str(i): list(c) for i, c in self.board.printed.marker_centers_m.items()},
                 "true_corners_m": self.board.true_corners().tolist(),
-            },
+            }
+            | self._marker_centers(),
         }
+
+    def _marker_centers(self) -> dict:
+        """Where the printer put each QR marker (other kinds print as one pattern)."""
+        printed = self.board.printed
+        if not isinstance(printed, BoardDefinition):
+            return {}
+        return {"marker_centers_m": {str(i): list(c) for i, c in printed.marker_centers_m.items()}}
 
 
 def reported_intrinsics(scenario: Scenario) -> CameraIntrinsics:
@@ -93,7 +101,7 @@ def reported_intrinsics(scenario: Scenario) -> CameraIntrinsics:
     return replace(k, dist=tuple(lens.reported_coefficients)) if lens.enabled else k
 
 
-def draw_true_cell(scenario: Scenario, board: BoardDefinition, rng: np.random.Generator) -> TrueCell:
+def draw_true_cell(scenario: Scenario, board: Target, rng: np.random.Generator) -> TrueCell:
     """The true cell of a scenario, drawn from rng in a fixed order (arm, intrinsics, depth
     registration, board); a section that is off draws nothing."""
     errors = scenario.errors
@@ -141,11 +149,18 @@ def _true_kinematics(nominal: URKinematics, arm: ArmErrors, rng: np.random.Gener
     )
 
 
-def _printed_board(board: BoardDefinition, errors: BoardErrors, rng: np.random.Generator) -> PrintedBoard:
+def _printed_board(board: Target, errors: BoardErrors, rng: np.random.Generator) -> PrintedBoard:
+    scale = (1.0 + errors.scale_error[0], 1.0 + errors.scale_error[1])
+    if not isinstance(board, BoardDefinition):
+        if errors.marker_placement_sigma_m:
+            raise ValueError(
+                f"errors.board.marker_placement_sigma_m places QR markers one by one; board "
+                f"'{board.name}' is a {board.kind} board, printed as one pattern (set it to 0)"
+            )
+        return PrintedBoard(board, scale, tuple(errors.bend_m))
     shifts = errors.marker_placement_sigma_m * rng.standard_normal((len(board.marker_ids), 2))
     centers = {
         i: (c[0] + float(dx), c[1] + float(dy))
         for (i, c), (dx, dy) in zip(board.marker_centers_m.items(), shifts, strict=True)
     }
-    scale = (1.0 + errors.scale_error[0], 1.0 + errors.scale_error[1])
     return PrintedBoard(replace(board, marker_centers_m=centers), scale, tuple(errors.bend_m))

@@ -18,8 +18,8 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_rpy
 from estimator.io.models import models_dir
 from estimator.io.tomlfile import Section, read_toml, validation_problems
-from estimator.targets.board import BoardDefinition
 from estimator.targets.kinds import find_board
+from estimator.targets.target import Target
 
 Vector3 = tuple[float, float, float]
 
@@ -286,7 +286,7 @@ class Scenario(Section):
     # Folder that relative paths in the file (board definition, waypoints) are read from.
     base_dir: str = Field(".", exclude=True)
 
-    def board_definition(self) -> BoardDefinition:
+    def board_definition(self) -> Target:
         """A board name in models/boards/, or a JSON path relative to the scenario."""
         return find_board(self.board.definition, Path(self.base_dir))
 

@@ -24,7 +24,7 @@ from estimator.geometry.kinematics import ROBOTS, URKinematics
 from estimator.geometry.lie import so3_exp
 from estimator.geometry.transforms import invert, make_transform, xyz_quat_from_transform
 from estimator.io.models import models_dir
-from estimator.targets.board import BoardDefinition, board_image
+from estimator.targets.target import Target
 from sim.model_errors import PrintedBoard
 from sim.scenario import ScenarioError
 
@@ -78,7 +78,7 @@ class CellModel:
     T_base_board: np.ndarray
     T_flange_cam: np.ndarray
     intrinsics: CameraIntrinsics
-    board: BoardDefinition
+    board: Target
     true_kinematics: URKinematics
 
     @property
@@ -104,7 +104,7 @@ def build_cell(
     robot: str,
     T_flange_cam: np.ndarray,
     intrinsics: CameraIntrinsics,
-    board: BoardDefinition,
+    board: Target,
     T_base_board: np.ndarray,
     offscreen_size: tuple[int, int] = (1280, 960),
     depth_sensor: DepthSensor | None = None,
@@ -213,7 +213,7 @@ def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.nda
     board = printed.printed
     # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
     # inside 8 bits and the camera's noise is not clipped away.
-    coverage = board_image(board, BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
+    coverage = board.image(BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
     image = np.round(255.0 * (INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * coverage))
     rgb = np.repeat(image.astype(np.uint8)[:, :, None], 3, axis=2)
     spec.add_texture(

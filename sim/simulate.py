@@ -62,7 +62,8 @@ def _warn_small_markers(module_px: list[float]) -> None:
     if small:
         tqdm.write(
             f"warning: in {len(small)} of {len(module_px)} frames the markers are too small to decode: a QR "
-            f"module is {min(small):.2g} px wide (at least {MIN_MODULE_PX:g} px needed); move the views "
+            f"module (or tag bit) is {min(small):.2g} px wide (at least {MIN_MODULE_PX:g} px needed); move "
+            "the views "
             "closer to the board or narrow the camera's field of view (camera.fovy_deg)",
             file=sys.stderr,
         )

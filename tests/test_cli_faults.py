@@ -238,7 +238,10 @@ def test_markers_too_small_to_decode_are_warned_of(tmp_path: Path) -> None:
         ["simulate", "--out", str(tmp_path / "out"), "--scenario", str(scenario), "--quiet"]
     )
     assert code == 0
-    assert "warning: in 1 of 1 frames the markers are too small to decode: a QR module is 1.2 px wide" in err
+    assert (
+        "warning: in 1 of 1 frames the markers are too small to decode: a QR module (or tag bit) is "
+        "1.2 px wide" in err
+    )
 
 
 # --- datasets and results ------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
 from estimator.io.dataset import Dataset, Frame, GroundTruth, dataset_json
 from estimator.io.depth_png import decode_depth, encode_depth
-from estimator.targets.board import BoardDefinition
+from estimator.targets.target import Target
 
 
 def stored_frame(frame: Frame, depth_scale_m: float) -> Frame:
@@ -31,7 +31,7 @@ def stored_frame(frame: Frame, depth_scale_m: float) -> Frame:
 def dataset_in_memory(
     frames: list[Frame],
     intrinsics: CameraIntrinsics,
-    board: BoardDefinition,
+    board: Target,
     depth_scale_m: float,
     source: str,
     ground_truth: GroundTruth | None = None,

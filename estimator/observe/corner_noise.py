@@ -47,8 +47,8 @@ from scipy.sparse import lil_matrix
 
 from estimator.geometry.camera import CameraIntrinsics, distort, pixel_rays
 from estimator.observe.observations import FrameObservations, with_pixel_floor
-from estimator.targets.board import BoardDefinition
 from estimator.targets.qr import DetectorSettings
+from estimator.targets.target import Target
 
 # Fewest residual degrees of freedom for a measured figure.
 MIN_DOF = 16
@@ -116,8 +116,8 @@ class CornerNoise:
 class _Views:
     """The corners of the markers of the frames with at least two, one row per marker: frame
     (n,) and marker (n,) indices (0-based, of the frames and markers that occur), points_px
-    (n, 4, 2) and their image-noise variances (n, 4, 2, pixels^2), board_xy (M, 4, 2) the
-    corners on the board (metres)."""
+    (n, P, 2) and their image-noise variances (n, P, 2, pixels^2), board_xy (M, P, 2) the
+    points on the board (metres)."""
 
     frame: np.ndarray
     marker: np.ndarray
@@ -149,21 +149,20 @@ class BoardFit:
         return float(np.sqrt(self.residuals.size / max(self.dof, 1)))
 
 
-def _views(
-    observations: list[FrameObservations], board: BoardDefinition, settings: DetectorSettings
-) -> _Views:
+def _views(observations: list[FrameObservations], board: Target, settings: DetectorSettings) -> _Views:
     """The corners the fit can use (of the frames with 2 or more markers), with the constant
     floor taken out of their variances."""
     usable = [o for o in observations if o.problem is None and len(o.markers) >= 2]
     markers = [(f, m) for f, o in enumerate(usable) for m in o.markers]
     ids = sorted({m.marker_id for _, m in markers})
     var = [np.diag(m.corners_cov) - settings.corner_floor_px**2 for _, m in markers]
+    P = board.points_per_marker
     return _Views(
         frame=np.array([f for f, _ in markers], dtype=int),
         marker=np.array([ids.index(m.marker_id) for _, m in markers], dtype=int),
-        points_px=np.array([m.corners_px for _, m in markers]).reshape(-1, 4, 2),
-        image_var=np.maximum(np.array(var).reshape(-1, 4, 2), 0.0),
-        board_xy=np.array([board.marker_corners(i)[:, :2] for i in ids]).reshape(-1, 4, 2),
+        points_px=np.array([m.corners_px for _, m in markers]).reshape(-1, P, 2),
+        image_var=np.maximum(np.array(var).reshape(-1, P, 2), 0.0),
+        board_xy=np.array([board.marker_corners(i)[:, :2] for i in ids]).reshape(-1, P, 2),
         n_frames=len(usable),
     )
 
@@ -255,7 +254,7 @@ class _Model:
 
 def fit_board_views(
     observations: list[FrameObservations],
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     settings: DetectorSettings,
     lens: bool = True,
@@ -325,7 +324,7 @@ def learned_floor(residuals: np.ndarray, image_var: np.ndarray, dof_factor: floa
 
 def measure_corner_noise(
     observations: list[FrameObservations],
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     settings: DetectorSettings,
 ) -> CornerNoise:
@@ -373,7 +372,7 @@ def apply_corner_noise(
 
 def learn_corner_floor(
     observations: list[FrameObservations],
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     settings: DetectorSettings,
 ) -> tuple[list[FrameObservations], CornerNoise | None]:

@@ -112,8 +112,9 @@ def fit_marker_depth(depth_m: np.ndarray, corners_px: np.ndarray, noise: DepthNo
     """Fit the depth plane under a marker.
 
     depth_m: (H, W) float depth aligned to colour, metres, 0 or non-finite = no depth.
-    corners_px: (4, 2) marker corners. Raises DepthFitError when too few valid pixels
-    lie under the marker.
+    corners_px: (k, 2) the convex polygon under the marker (its corners, or the region its
+    detector names, MarkerDetection.depth_region_px). Raises DepthFitError when too few valid
+    pixels lie under it.
     """
     h, w = depth_m.shape
     lo = np.maximum(np.floor(corners_px.min(axis=0)).astype(int), 0)

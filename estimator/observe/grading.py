@@ -18,24 +18,21 @@ from estimator.geometry.camera import CameraIntrinsics, project
 from estimator.geometry.transforms import invert, transform_points
 from estimator.io.dataset import GroundTruth
 from estimator.observe.observations import FrameObservations
-from estimator.targets.board import BoardDefinition
-from estimator.targets.qr_fit import fits_in_image
+from estimator.targets.target import Target
 
 # A detection this far (pixels, any corner) from its marker's true corners has the wrong ID.
 WRONG_ID_PX = 5.0
-# Quiet-zone modules that must be in the image for a marker to count as fully visible.
-VISIBLE_QUIET_MODULES = 2
 
 
 @dataclass
 class MeasurementErrors:
-    """Pooled over frames. Arrays have one row per graded marker (points: centre, corners 0..3)."""
+    """Pooled over frames. Arrays have one row per graded marker (points: centre, points 0..P-1)."""
 
     visible: int = 0
     found_visible: int = 0
     wrong_id: int = 0
-    corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (4, 2) each
-    raw_corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (4, 2) each
+    corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (P, 2) each
+    raw_corner_errors_px: list[np.ndarray] = field(default_factory=list)  # (P, 2) each
     corner_nees: list[float] = field(default_factory=list)  # per corner, dim 2
     center_errors_px: list[np.ndarray] = field(default_factory=list)  # (2,) each
     center_px_nees: list[float] = field(default_factory=list)
@@ -89,9 +86,9 @@ def true_T_cam_board(truth: GroundTruth, frame: int) -> np.ndarray:
 
 
 def true_cell(
-    truth: GroundTruth, board: BoardDefinition, intrinsics: CameraIntrinsics
+    truth: GroundTruth, board: Target, intrinsics: CameraIntrinsics
 ) -> tuple[CameraIntrinsics, np.ndarray]:
-    """The camera that formed the images and the (M, 4, 3) corners of the board's markers as
+    """The camera that formed the images and the (M, P, 3) points of the board's markers as
     printed (board frame, metres, ordered by board.marker_ids): the truth's model errors where
     it records them, else the dataset's intrinsics and the board definition."""
     errors = truth.model_errors or {}
@@ -100,10 +97,25 @@ def true_cell(
     return camera, corners
 
 
+def _in_image(
+    T_cam_board: np.ndarray, points_board: np.ndarray, margin_m: float, camera: CameraIntrinsics
+) -> bool:
+    """Whether the squares of half-side margin_m (board frame) about the points (P, 3) lie
+    inside the image, in front of the camera: the marker and its margin are fully visible."""
+    offsets = margin_m * np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    grown = (points_board[:, None, :] + offsets[None]).reshape(-1, 3)
+    if np.any(transform_points(T_cam_board, grown)[:, 2] <= 0.0):
+        return False
+    uv = project(T_cam_board, grown, camera)
+    return bool(
+        np.all(uv >= 0.0) and np.all(uv[:, 0] <= camera.width - 1) and np.all(uv[:, 1] <= camera.height - 1)
+    )
+
+
 def grade_observations(
     observations: list[FrameObservations],
     truth: GroundTruth,
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
 ) -> MeasurementErrors:
     """Compare every frame's observations with the truth (true_cell). A marker's true centre
@@ -117,9 +129,7 @@ def grade_observations(
             true_points = transform_points(T_cam_board, points_board)
             true_center, true_corners = np.split(project(T_cam_board, points_board, camera), [1])
             facing = (invert(T_cam_board) @ np.array([0.0, 0.0, 0.0, 1.0]))[2] > 0.0
-            visible = facing and fits_in_image(
-                true_corners, VISIBLE_QUIET_MODULES / board.modules, (camera.height, camera.width)
-            )
+            visible = facing and _in_image(T_cam_board, corners, board.visible_margin_m, camera)
             errors.visible += int(visible)
             marker = obs.marker(marker_id)
             if marker is None:
@@ -131,7 +141,7 @@ def grade_observations(
             errors.found_visible += int(visible)
             errors.corner_errors_px.append(corner_error)
             errors.raw_corner_errors_px.append(marker.raw_corners_px - true_corners)
-            for k in range(4):
+            for k in range(len(corner_error)):
                 cov = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
                 errors.corner_nees.append(
                     float(corner_error[k] @ np.linalg.solve(cov, corner_error[k])) / 2.0

@@ -50,15 +50,18 @@ class ObservationCacheError(ValueError):
 class MarkerObservation(MarkerDetection):
     """One marker in one frame: its detection (estimator.targets.qr.MarkerDetection) plus depth.
 
-    Points are (centre, corner 0..3). depth_m (5,), depth_cov (5, 5): depth along the
-    optical axis at the five points (correlated: one plane). points_cam (5, 3),
-    points_cov (5, 3, 3): the points in the camera frame, metres, each with its own
+    Points are (centre, corner 0..P-1), P the board's points per marker (4 for a QR code, 1 for
+    a chessboard corner, whose centre is the point itself). depth_m (1 + P,), depth_cov
+    (1 + P, 1 + P): depth along the optical axis at those points (correlated: one plane);
+    depth_slope (1 + P, 2): the plane's dz/d(u, v) there, metres per pixel. points_cam (1 + P, 3),
+    points_cov (1 + P, 3, 3): the points in the camera frame, metres, each with its own
     covariance. Depth fields are None when the marker has no usable depth; depth_note
     then says why. depth_pixels: inlier, valid and total pixel counts under the marker.
     """
 
     depth_m: np.ndarray | None = None
     depth_cov: np.ndarray | None = None
+    depth_slope: np.ndarray | None = None
     points_cam: np.ndarray | None = None
     points_cov: np.ndarray | None = None
     depth_note: str | None = None
@@ -142,20 +145,21 @@ def camera_points(
     slope: np.ndarray,
     intrinsics: CameraIntrinsics,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The centre and corners of a marker in the camera frame, each with its covariance.
+    """The centre and points of a marker in the camera frame, each with its covariance.
 
-    z: (5,) depth at (centre, corner 0..3), metres; z_cov: (5, 5); slope: (5, 2) dz/d(u, v)
-    of the surface there. Returns points (5, 3) and their covariances (5, 3, 3).
+    z: (1 + P,) depth at (centre, point 0..P-1), metres; z_cov: (1 + P, 1 + P); slope: (1 + P, 2)
+    dz/d(u, v) of the surface there. Returns points (1 + P, 3) and their covariances (1 + P, 3, 3).
     """
     uv = np.vstack([marker.center_px, marker.corners_px])
     return back_projected_points(uv, _pixel_covariances(marker), z, np.diag(z_cov), slope, intrinsics)
 
 
 def _pixel_covariances(marker: MarkerDetection) -> np.ndarray:
-    """(5, 2, 2) covariances of the marker's centre and corners 0..3, pixels^2."""
-    uv_cov = np.zeros((5, 2, 2))
+    """(1 + P, 2, 2) covariances of the marker's centre and points 0..P-1, pixels^2."""
+    P = len(marker.corners_px)
+    uv_cov = np.zeros((1 + P, 2, 2))
     uv_cov[0] = marker.center_cov
-    for k in range(4):
+    for k in range(P):
         uv_cov[k + 1] = marker.corners_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
     return uv_cov
 
@@ -184,22 +188,23 @@ def with_pixel_floor(
     marker: MarkerObservation, corner_var: float, center_var: float, intrinsics: CameraIntrinsics
 ) -> MarkerObservation:
     """The marker with corner_var added to the variance of each corner coordinate and center_var
-    to the centre's (pixels^2), and its 3D points' covariances grown to match."""
+    to the centre's (pixels^2), and its 3D points' covariances grown to match (with the depth
+    plane's slope; caches written before it was kept: the slope through its corners' depths)."""
     grown = replace(
         marker,
-        corners_cov=marker.corners_cov + corner_var * np.eye(8),
+        corners_cov=marker.corners_cov + corner_var * np.eye(marker.corners_cov.shape[0]),
         center_cov=marker.center_cov + center_var * np.eye(2),
     )
     if marker.points_cam is None:
         return grown
     uv = np.vstack([marker.center_px, marker.corners_px])
-    slope = _plane_slope(uv, marker.depth_m)
+    slope = marker.depth_slope if marker.depth_slope is not None else _plane_slope(uv, marker.depth_m)
     _, points_cov = camera_points(grown, marker.depth_m, marker.depth_cov, slope, intrinsics)
     return replace(grown, points_cov=points_cov)
 
 
 def _plane_slope(uv: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """(5, 2) dz/d(u, v) at the pixels uv (5, 2) of depths z (5,) on one plane, metres per
+    """(n, 2) dz/d(u, v) at the pixels uv (n, 2), n >= 3 apart, of depths z (n,) on one plane, metres per
     pixel: 1/z is linear in (u, v) there (estimator.observe.depth.MarkerDepth)."""
     A = np.column_stack([np.ones(len(uv)), uv - uv.mean(axis=0)])
     coeffs = np.linalg.lstsq(A, 1.0 / z, rcond=None)[0]
@@ -211,15 +216,18 @@ def _depth(
 ) -> dict:
     """The depth fields of MarkerObservation for one detected marker."""
     try:
-        plane = fit_marker_depth(depth_m, marker.corners_px, noise)
+        region = marker.corners_px if marker.depth_region_px is None else marker.depth_region_px
+        plane = fit_marker_depth(depth_m, region, noise)
     except DepthFitError as exc:
         return {"depth_note": str(exc)}
     uv = np.vstack([marker.center_px, marker.corners_px])
     z, z_cov = plane.depth_at(uv)
-    points, points_cov = camera_points(marker, z, z_cov, plane.slope_at(uv), intrinsics)
+    slope = plane.slope_at(uv)
+    points, points_cov = camera_points(marker, z, z_cov, slope, intrinsics)
     return {
         "depth_m": z,
         "depth_cov": z_cov,
+        "depth_slope": slope,
         "points_cam": points,
         "points_cov": points_cov,
         "depth_pixels": {"inliers": plane.inliers, "valid": plane.valid, "pixels": plane.pixels},

@@ -21,8 +21,8 @@ from estimator.geometry.transforms import invert, transform_points
 from estimator.observe.depth import DepthNoiseModel
 from estimator.observe.observations import FrameObservations, MarkerObservation, back_projected_points
 from estimator.solve.problem import RobotPoseNoise
-from estimator.targets.board import BoardDefinition
 from estimator.targets.qr_fit import center_from_corners, point_jacobian_wrt_corners
+from estimator.targets.target import Target
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class SyntheticNoise:
 
 
 def synthetic_observations(
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     T_flange_cam: np.ndarray,
     T_base_board: np.ndarray,
@@ -51,6 +51,11 @@ def synthetic_observations(
     exact: add no noise, but still report the covariances of ``noise``. Noise is drawn frame by
     frame: the flange pose's, then each kept marker's corners' and its depths'.
     """
+    if board.points_per_marker != 4:
+        raise ValueError(
+            f"measurement-fidelity observations are synthesised for 4-corner markers; board "
+            f"'{board.name}' is a {board.kind} board (use render fidelity)"
+        )
     ids = list(board.marker_ids)
     corners_board = np.array([board.marker_corners(m) for m in ids])  # (M, 4, 3)
     corners_base = transform_points(T_base_board, corners_board.reshape(-1, 3))

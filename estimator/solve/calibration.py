@@ -84,7 +84,7 @@ class Calibration:
 
     covariance: (6, 6), or None when the method gives no uncertainty (the OpenCV baselines).
     T_base_board: (4, 4) board pose in the base frame (board model), landmarks_base:
-    {marker_id: (4, 3) corners in the base frame} (landmark model), one of them or both.
+    {marker_id: (C, 3) points in the base frame} (landmark model), one of them or both.
     observations_used / observations_rejected: markers over all frames that the method used / left
     out (frames without markers are in CalibrationProblem.rejected). diagnostics: at
     least 'iterations' and 'time_s'; 'observability' when computed. warnings: plain words.
@@ -142,9 +142,10 @@ def marker_residuals(
     for frame in problem.frames:
         pred = predict_frame(problem, state, frame, jacobians=False)
         corners_px = np.concatenate([m.corners_px for m in frame.markers])
-        rms_px = np.sqrt(np.mean(np.sum((pred.pixels - corners_px) ** 2, axis=1).reshape(-1, 4), axis=1))
-        depth_m = np.array([np.full(4, np.nan) if m.depth_m is None else m.depth_m for m in frame.markers])
-        depth_mm = 1e3 * np.sqrt(np.mean((pred.depth_m.reshape(-1, 4) - depth_m) ** 2, axis=1))
+        C = problem.points_per_marker
+        rms_px = np.sqrt(np.mean(np.sum((pred.pixels - corners_px) ** 2, axis=1).reshape(-1, C), axis=1))
+        depth_m = np.array([np.full(C, np.nan) if m.depth_m is None else m.depth_m for m in frame.markers])
+        depth_mm = 1e3 * np.sqrt(np.mean((pred.depth_m.reshape(-1, C) - depth_m) ** 2, axis=1))
         for k, m in enumerate(frame.markers):
             depth = None if m.depth_m is None else float(depth_mm[k])
             used = (frame.frame, m.marker_id) not in rejected
@@ -153,9 +154,10 @@ def marker_residuals(
 
 
 def landmarks_by_marker(problem: CalibrationProblem, state: HandEyeState) -> dict[int, np.ndarray]:
-    """{marker_id: (4, 3) corners in the base frame} from either map model."""
+    """{marker_id: (C, 3) points in the base frame} from either map model."""
     if state.landmarks_base is not None:
-        return {i: state.landmarks_base[4 * k : 4 * k + 4].copy() for k, i in enumerate(problem.marker_ids)}
+        C = problem.points_per_marker
+        return {i: state.landmarks_base[C * k : C * k + C].copy() for k, i in enumerate(problem.marker_ids)}
     return {
         i: transform_points(state.T_base_board, problem.board.marker_corners(i)) for i in problem.marker_ids
     }

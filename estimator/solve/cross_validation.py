@@ -125,7 +125,7 @@ def without_frame(problem: CalibrationProblem, index: int) -> CalibrationProblem
 def _fold_map(
     fold: CalibrationProblem, cal: Calibration
 ) -> tuple[dict[int, np.ndarray] | None, np.ndarray | None, str]:
-    """(landmarks {marker_id: (4, 3)} or None, T_base_board (4, 4) or None, where it came from)."""
+    """(landmarks {marker_id: (C, 3)} or None, T_base_board (4, 4) or None, where it came from)."""
     if cal.landmarks_base is not None:
         return cal.landmarks_base, None, "landmarks"
     if cal.T_base_board is not None:
@@ -156,15 +156,16 @@ def predict_held_out(
     landmarks: dict[int, np.ndarray] | None,
 ) -> HeldOut:
     """Predict a frame at its reported flange pose from a calibration: T_flange_cam (4, 4) and
-    either T_base_board (4, 4) or landmarks {marker_id: (4, 3)}, base frame (module doc)."""
+    either T_base_board (4, 4) or landmarks {marker_id: (C, 3)}, base frame (module doc)."""
     if landmarks is not None:
         frame = replace(frame, markers=[m for m in frame.markers if m.marker_id in landmarks])
         if not frame.markers:
             raise CalibrationInputError("none of its markers is in the other frames")
-        rows = np.full((4 * len(problem.marker_ids), 3), np.nan)
+        C = problem.points_per_marker
+        rows = np.full((C * len(problem.marker_ids), 3), np.nan)
         for k, i in enumerate(problem.marker_ids):
             if i in landmarks:
-                rows[4 * k : 4 * k + 4] = landmarks[i]
+                rows[C * k : C * k + C] = landmarks[i]
         state = HandEyeState(T_flange_cam, landmarks_base=rows)
         p_base = np.concatenate([landmarks[m.marker_id] for m in frame.markers])
     else:

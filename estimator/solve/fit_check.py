@@ -133,7 +133,7 @@ def _pixel_residuals(problem: CalibrationProblem, learned: LearnedNoise) -> tupl
         keep = [(frame.frame, m.marker_id) not in learned.outliers for m in frame.markers]
         pred = predict_frame(problem, state, frame, jacobians=False)
         measured = np.concatenate([m.corners_px for m in frame.markers])
-        mask = np.repeat(keep, 4)
+        mask = np.repeat(keep, problem.points_per_marker)
         residual.append((measured - pred.pixels)[mask])
         predicted.append(pred.pixels[mask])
         centre.append(np.broadcast_to(pred.pixels.mean(axis=0), (int(mask.sum()), 2)))
@@ -190,7 +190,8 @@ def _depth_pattern(problem: CalibrationProblem, learned: LearnedNoise, patterns:
         for k, m in enumerate(frame.markers):
             if m.depth_m is not None and (frame.frame, m.marker_id) not in learned.outliers:
                 measured.append(m.depth_m)
-                predicted.append(pred.depth_m[4 * k : 4 * k + 4] / (learned.state.depth_scale or 1.0))
+                C = problem.points_per_marker
+                predicted.append(pred.depth_m[C * k : C * k + C] / (learned.state.depth_scale or 1.0))
     z, z_pred = np.concatenate(measured), np.concatenate(predicted)
     A = np.column_stack([z_pred, np.ones_like(z_pred)])
     (slope, offset), *_ = np.linalg.lstsq(A, z - z_pred, rcond=None)

@@ -6,7 +6,8 @@ A board corner c (board frame) seen in frame i:
     p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
     pixel  = project(p_cam) + b               (K and OpenCV distortion; b: where the detector's
                                                homography fit over the marker's distorted image
-                                               puts its corners, estimator.geometry.marker_fit_bias)
+                                               puts its corners, estimator.geometry.marker_fit_bias;
+                                               QR boards only, whose corners come from that fit)
     depth  = exp(s) (depth_scale * p_cam.z + o + tx p_cam.x + ty p_cam.y)
              (s, o: problem.depth_bias, tx, ty: problem.depth_tilt, 0 unless self-calibrated)
 
@@ -150,8 +151,8 @@ def predict_frame(
         J_camera, J_shift = _camera_jacobian(problem, state, frame, pred)
     return FramePrediction(
         residual,
-        whitened_point_rows(stacked.whitening, stacked.rows, pred.J_state),
-        whitened_point_rows(stacked.whitening, stacked.rows, pred.J_flange),
+        whitened_point_rows(stacked.whitening, stacked.rows, pred.J_state, problem.points_per_marker),
+        whitened_point_rows(stacked.whitening, stacked.rows, pred.J_flange, problem.points_per_marker),
         pred.pixels,
         pred.depth,
         pred.p_cam,
@@ -162,8 +163,9 @@ def predict_frame(
 
 @dataclass
 class PointPrediction:
-    """The prediction of P points (4 corners per marker, the markers in order): predicted (12 K,)
-    per marker its 8 corner pixels then its 4 depths; pixels (P, 2); depth (P,); p_cam (P, 3).
+    """The prediction of P points (C per marker, problem.points_per_marker, the markers in order):
+    predicted (3 C K,) per marker its 2C point pixels then its C depths; pixels (P, 2); depth (P,);
+    p_cam (P, 3).
     With jacobians, d(u, v, depth)/d(the state's perturbation) J_state (P, 3, n) and /d(the flange
     pose's) J_flange (P, 3, 6), and what _camera_jacobian needs: the undistorted and distorted
     normalised coordinates xy, xy_d (P, 2), the corner bias's derivatives fit (with distortion or
@@ -184,11 +186,18 @@ class PointPrediction:
 
 
 def marker_points(problem: CalibrationProblem, markers: list, board: bool) -> np.ndarray:
-    """predict_points' points of these markers (4 each, in order): their corners in the board frame
-    (4 K, 3) with board, else their landmark rows (4 K,)."""
+    """predict_points' points of these markers (C each, in order): their points in the board frame
+    (C K, 3) with board, else their landmark rows (C K,)."""
     if board:
         return np.concatenate([m.corners_board for m in markers])
-    return np.concatenate([4 * problem.marker_index(m.marker_id) + np.arange(4) for m in markers])
+    C = problem.points_per_marker
+    return np.concatenate([C * problem.marker_index(m.marker_id) + np.arange(C) for m in markers])
+
+
+def homography_fitted(problem: CalibrationProblem) -> bool:
+    """Whether the corners come from one homography fit over each whole marker (the QR detector's),
+    so that lens distortion biases them (estimator.geometry.marker_fit_bias)."""
+    return problem.board.kind == "qr"
 
 
 def _rotated(v: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -207,8 +216,8 @@ def predict_points(
 ) -> PointPrediction:
     """Predict marker corners seen from flange poses (R_F (3, 3) or (P, 3, 3), t_F (3,) or
     (P, 3), base frame): points are the corners in the board frame (P, 3) (board mode) or the
-    landmark rows (P,) (landmark mode), 4 per marker; camera: with the corner bias's derivatives
-    for _camera_jacobian."""
+    landmark rows (P,) (landmark mode), C per marker; camera: with the corner bias's derivatives
+    for _camera_jacobian (QR boards)."""
     R_X, t_X = state.T_flange_cam[:3, :3], state.T_flange_cam[:3, 3]
     corners_board = rows = None
     if state.T_base_board is not None:
@@ -225,7 +234,8 @@ def predict_points(
     p_flange = _rotated(p_base - t_F, R_F)
     p_cam = (p_flange - t_X) @ R_X
     pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
-    distorted = any(problem.intrinsics.dist)
+    fitted = homography_fitted(problem)
+    distorted = fitted and any(problem.intrinsics.dist)
     bias = marker_fit_bias(p_cam.reshape(-1, 4, 3), problem.intrinsics) if distorted else None
     if bias is not None:
         pixels = pixels + bias.reshape(-1, 2)
@@ -233,13 +243,14 @@ def predict_points(
     gain = float(np.exp(problem.depth_bias[0]))
     tilt = problem.depth_tilt
     depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1] + p_cam[:, :2] @ tilt)
-    predicted = np.concatenate([pixels.reshape(-1, 8), depth.reshape(-1, 4)], axis=1).reshape(-1)
+    C = problem.points_per_marker
+    predicted = np.concatenate([pixels.reshape(-1, 2 * C), depth.reshape(-1, C)], axis=1).reshape(-1)
     if not jacobians:
         return PointPrediction(predicted, pixels, depth, p_cam)
 
     P = len(p_cam)
     fit = None
-    if distorted or camera:
+    if distorted or (camera and fitted):
         fit = marker_fit_bias_jacobians(p_cam.reshape(-1, 4, 3), problem.intrinsics, bias)
     d_bias_d_cam = None if bias is None else fit.d_corners_cam
     RXt = R_X.T
@@ -302,7 +313,7 @@ def _camera_jacobian(
     k = problem.intrinsics
     xy, xy_d, fit, depth, p_cam = pred.xy, pred.xy_d, pred.fit, pred.depth, pred.p_cam
     # the detector's corner bias moves with the corners only under distortion
-    d_bias_d_cam = fit.d_corners_cam if any(k.dist) else None
+    d_bias_d_cam = fit.d_corners_cam if fit is not None and any(k.dist) else None
     P = len(xy)
     J = np.zeros((P, 3, 16))  # per point: (u, v, depth) rows; the last two: the marker's shift
     f = np.array([k.fx, k.fy])
@@ -311,7 +322,8 @@ def _camera_jacobian(
     r2 = np.sum(xy * xy, axis=1)
     J[:, :2, 4] = xy * r2[:, None] * f
     J[:, :2, 5] = xy * (r2 * r2)[:, None] * f
-    J[:, :2, [0, 1, 4, 5]] += fit.d_camera.reshape(P, 2, 4)
+    if fit is not None:
+        J[:, :2, [0, 1, 4, 5]] += fit.d_camera.reshape(P, 2, 4)
     if state.T_base_board is not None:  # landmarks have no board to scale
         corners_board = np.concatenate([m.corners_board for m in frame.markers])
         R_B = state.T_base_board[:3, :3]
@@ -333,14 +345,19 @@ def _camera_jacobian(
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
-    whitened = whitened_point_rows(frame.stacked.whitening, frame.stacked.rows, J)
+    whitened = whitened_point_rows(frame.stacked.whitening, frame.stacked.rows, J, problem.points_per_marker)
     return whitened[:, :14], whitened[:, 14:]
 
 
-def whitened_point_rows(whitening: np.ndarray, selected: np.ndarray, J_points: np.ndarray) -> np.ndarray:
+def whitened_point_rows(
+    whitening: np.ndarray, selected: np.ndarray, J_points: np.ndarray, C: int
+) -> np.ndarray:
     """(R, n) whitened measurement rows of derivatives per point (P, 3, n), (u, v, depth) of each
-    marker's 4 corners, the markers in order: the per-marker layout (8 pixels, 4 depths), its
-    measured entries selected (r,), times whitening (R, r) (a frame's, or every frame's stacked)."""
-    K, n = len(J_points) // 4, J_points.shape[-1]
-    per_marker = np.concatenate([J_points[:, :2].reshape(K, 8, n), J_points[:, 2].reshape(K, 4, n)], axis=1)
-    return whitening @ per_marker.reshape(12 * K, n)[selected]
+    marker's C points (problem.points_per_marker), the markers in order: the per-marker layout (2C
+    pixels, C depths), its measured entries selected (r,), times whitening (R, r) (a frame's, or
+    every frame's stacked)."""
+    K, n = len(J_points) // C, J_points.shape[-1]
+    per_marker = np.concatenate(
+        [J_points[:, :2].reshape(K, 2 * C, n), J_points[:, 2].reshape(K, C, n)], axis=1
+    )
+    return whitening @ per_marker.reshape(3 * C * K, n)[selected]

@@ -26,9 +26,10 @@ from estimator.solve.problem import CalibrationProblem, FrameMeasurements, Marke
 
 
 def _pixel_information(m: MarkerMeasurement) -> np.ndarray:
-    """(8, 8) information of the corner pixels (the pixel block of W^T W; the pixel and depth
+    """(2C, 2C) information of the C point pixels (the pixel block of W^T W; the pixel and depth
     covariances are independent, so the block is the inverse of the pixel covariance)."""
-    return (m.whitening.T @ m.whitening)[:8, :8]
+    n = 2 * len(m.corners_px)
+    return (m.whitening.T @ m.whitening)[:n, :n]
 
 
 def view_noise_floor(
@@ -40,13 +41,16 @@ def view_noise_floor(
     info = [_pixel_information(m) for m in frame.markers]
     cov_px = [np.linalg.inv(i) for i in info]
     corner_px2 = np.concatenate(
-        [[np.trace(c[2 * j : 2 * j + 2, 2 * j : 2 * j + 2]) for j in range(4)] for c in cov_px]
+        [[np.trace(c[2 * j : 2 * j + 2, 2 * j : 2 * j + 2]) for j in range(len(c) // 2)] for c in cov_px]
     )
     T_base_board = frame.T_base_flange @ T_flange_cam @ T_cam_board
     state = HandEyeState(T_flange_cam, T_base_board=T_base_board)
 
     # The flange pose error in pixels: unwhitened pixel rows (identity whitening).
-    plain = replace(frame, markers=[replace(m, depth_m=None, whitening=np.eye(8)) for m in frame.markers])
+    plain = replace(
+        frame,
+        markers=[replace(m, depth_m=None, whitening=np.eye(2 * len(m.corners_px))) for m in frame.markers],
+    )
     J_flange = predict_frame(problem, state, plain).J_flange.reshape(-1, 2, 6)
     robot_cov = problem.robot_noise.covariance()
     robot_px2 = np.einsum("pij,jk,pik->p", J_flange, robot_cov, J_flange)

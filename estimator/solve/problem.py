@@ -1,11 +1,12 @@
 """The calibration problem every method solves: validated, whitened measurements.
 
 Input is what the detector gives (estimator.observe.observations.FrameObservations): per
-frame the reported flange pose T_base_flange and, per marker, the corner pixels
-with their (8, 8) covariance and the depth at the corners with its covariance.
-A marker's measurement vector is (u0, v0, ..., u3, v3, z0, ..., z3) (the depths
+frame the reported flange pose T_base_flange and, per marker, its P points' pixels
+(P = board.points_per_marker: 4 corners of a QR code or tag, 1 chessboard corner)
+with their (2P, 2P) covariance and the depth at the points with its covariance.
+A marker's measurement vector is (u0, v0, ..., u_P-1, v_P-1, z0, ..., z_P-1) (the depths
 only when the marker has depth). Its covariance can be singular (the four corner
-depths come from one plane: rank 3), so each marker carries a whitening matrix W
+depths of a QR code come from one plane: rank 3), so each marker carries a whitening matrix W
 with W @ cov @ W.T = I over the covariance's non-null space; estimators work with
 whitened residuals W @ (measured - predicted), which are N(0, I) at the truth.
 
@@ -28,7 +29,7 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.kinematics import ROBOTS, URKinematics
 from estimator.io.dataset import Dataset, DatasetError
 from estimator.observe.observations import FrameObservations, MarkerObservation
-from estimator.targets.board import BoardDefinition
+from estimator.targets.target import Target
 
 MIN_FRAMES = 3
 # Eigenvalues below this fraction of the largest are the covariance's null space.
@@ -103,8 +104,8 @@ def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
 
 @dataclass
 class MarkerMeasurement:
-    """One marker in one frame. corners_board: (4, 3) metres in the board frame.
-    corners_px: (4, 2). depth_m: (4,) at the corners, or None. whitening: (m, 8) or (m, 12),
+    """One marker of P points in one frame. corners_board: (P, 3) metres in the board frame.
+    corners_px: (P, 2). depth_m: (P,) at the points, or None. whitening: (m, 2P) or (m, 3P),
     block-diagonal: its first pixel_rows rows whiten the pixels, the others the depths."""
 
     marker_id: int
@@ -116,7 +117,7 @@ class MarkerMeasurement:
 
     @property
     def measured(self) -> np.ndarray:
-        """(8,) or (12,): corner pixels, then corner depths."""
+        """(2P,) or (3P,): point pixels, then point depths."""
         z = self.corners_px.reshape(-1)
         return z if self.depth_m is None else np.concatenate([z, self.depth_m])
 
@@ -134,8 +135,9 @@ class FrameMeasurements:
     @functools.cached_property
     def stacked(self) -> StackedMeasurements:
         """The frame's markers as one measurement (see StackedMeasurements)."""
+        P = len(self.markers[0].corners_px)
         rows = np.concatenate(
-            [12 * k + np.arange(8 if m.depth_m is None else 12) for k, m in enumerate(self.markers)]
+            [3 * P * k + np.arange(2 * P if m.depth_m is None else 3 * P) for k, m in enumerate(self.markers)]
         )
         return StackedMeasurements(
             rows,
@@ -159,7 +161,7 @@ def _block_diagonal(blocks: list[np.ndarray]) -> np.ndarray:
 @dataclass(frozen=True)
 class StackedMeasurements:
     """A frame's K markers as one measurement. rows: (r,) which entries of the per-marker layout
-    (12 K,: each marker's 8 corner pixels, then its 4 corner depths) are measured; whitening: (R, r)
+    (3 P K,: each marker's 2P point pixels, then its P depths) are measured; whitening: (R, r)
     the markers' whitenings block-diagonally; measured: (r,) the measured values."""
 
     rows: np.ndarray
@@ -170,7 +172,7 @@ class StackedMeasurements:
 @dataclass
 class CalibrationProblem:
     """Everything an estimator needs. marker_ids: the observed board markers, sorted; the
-    landmark of corner c of marker marker_ids[k] has index 4 * k + c. rejected: one line
+    landmark of point c of marker marker_ids[k] has index P * k + c (P points_per_marker). rejected: one line
     per frame or marker left out, with the reason. depth_bias: (log scale s, offset o metres) of
     the measured depth, measured = exp(s) (z + o) for a true depth z (self-calibration sets it;
     none by default). board_bend_m: (bx, by) sag of the board out of its plane, corner z +=
@@ -182,7 +184,7 @@ class CalibrationProblem:
     frame then has its joints), or None."""
 
     intrinsics: CameraIntrinsics
-    board: BoardDefinition
+    board: Target
     frames: list[FrameMeasurements]
     robot_noise: RobotPoseNoise
     marker_ids: list[int]
@@ -191,6 +193,11 @@ class CalibrationProblem:
     board_bend_m: tuple[float, float] = (0.0, 0.0)
     depth_tilt: tuple[float, float] = (0.0, 0.0)
     kinematics: URKinematics | None = None
+
+    @property
+    def points_per_marker(self) -> int:
+        """P: the points of each marker (the board's)."""
+        return self.board.points_per_marker
 
     @property
     def observation_count(self) -> int:
@@ -256,7 +263,7 @@ def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
 
 def build_problem(
     observations: list[FrameObservations],
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     robot_noise: RobotPoseNoise | None = None,
     use_depth: bool = True,
@@ -309,30 +316,33 @@ def build_problem(
 
 
 def _markers(
-    observed: list[tuple[int, MarkerObservation]], board: BoardDefinition, use_depth: bool
+    observed: list[tuple[int, MarkerObservation]], board: Target, use_depth: bool
 ) -> list[MarkerMeasurement]:
     """The measurements of (frame, MarkerObservation) pairs, validated, with their whitenings."""
+    P = board.points_per_marker
     whats = [f"frame {frame} marker {m.marker_id}" for frame, m in observed]
     corners = [np.asarray(m.corners_px, dtype=np.float64) for _, m in observed]
     for what, c in zip(whats, corners, strict=True):
-        if c.shape != (4, 2):
-            raise CalibrationInputError(f"{what}: corners_px must be (4, 2) finite pixels")
-    finite = np.isfinite(np.array(corners).reshape(len(corners), 8)).all(axis=1)
+        if c.shape != (P, 2):
+            raise CalibrationInputError(f"{what}: corners_px must be ({P}, 2) finite pixels")
+    finite = np.isfinite(np.array(corners).reshape(len(corners), 2 * P)).all(axis=1)
     if not finite.all():
-        raise CalibrationInputError(f"{whats[np.argmin(finite)]}: corners_px must be (4, 2) finite pixels")
+        raise CalibrationInputError(f"{whats[np.argmin(finite)]}: corners_px must be ({P}, 2) finite pixels")
     W_pixels = whitening_matrices([np.asarray(m.corners_cov, dtype=np.float64) for _, m in observed], whats)
     with_depth = [i for i, (_, m) in enumerate(observed) if use_depth and m.depth_m is not None]
     depths = [np.asarray(observed[i][1].depth_m, dtype=np.float64) for i in with_depth]
     for i, z in zip(with_depth, depths, strict=True):
-        if z.shape != (5,):
-            raise CalibrationInputError(f"{whats[i]}: depth_m must hold 5 depths (centre, corners 0..3)")
-    valid = np.array([np.isfinite(z[1:5]).all() and (z[1:5] > 0).all() for z in depths], dtype=bool)
+        if z.shape != (1 + P,):
+            raise CalibrationInputError(
+                f"{whats[i]}: depth_m must hold {1 + P} depths (centre, points 0..{P - 1})"
+            )
+    valid = np.array([np.isfinite(z[1:]).all() and (z[1:] > 0).all() for z in depths], dtype=bool)
     if not valid.all():
         raise CalibrationInputError(
             f"{whats[with_depth[np.argmin(valid)]]}: depth_m must be finite and positive"
         )
     W_depths = whitening_matrices(
-        [np.asarray(observed[i][1].depth_cov, dtype=np.float64)[1:5, 1:5] for i in with_depth],
+        [np.asarray(observed[i][1].depth_cov, dtype=np.float64)[1:, 1:] for i in with_depth],
         [f"{whats[i]} depth" for i in with_depth],
     )
     depth_of = dict(zip(with_depth, zip(depths, W_depths, strict=True), strict=True))
@@ -342,7 +352,7 @@ def _markers(
         W, depth = W_pixels[i], None
         if i in depth_of:
             z, W_depth = depth_of[i]
-            depth, W = z[1:5], _block_diagonal([W_pixels[i], W_depth])
+            depth, W = z[1:], _block_diagonal([W_pixels[i], W_depth])
         measurements.append(
             MarkerMeasurement(m.marker_id, corners_board[m.marker_id], corners[i], depth, W, len(W_pixels[i]))
         )

@@ -16,7 +16,7 @@ from estimator.solve.problem import CalibrationProblem
 
 @dataclass(frozen=True)
 class StackedFrames:
-    """A problem's N frames stacked (K markers, P = 4 K points, R whitened rows, frames in order):
+    """A problem's N frames stacked (K markers of C points, P = C K points, R whitened rows, frames in order):
     points (P, 3) board corners or (P,) landmark rows (predict_points); frame_of_point (P,);
     T_base_flange (N, 4, 4) as reported; selected (r,) the measured entries of the per-marker
     layout (predict_points' predicted), measured (r,) their values; whitening (R, r) sparse, every
@@ -50,11 +50,12 @@ def stacked_frames(problem: CalibrationProblem, board: bool) -> StackedFrames:
     """The problem's frames stacked; board: the points are board corners (else landmark rows)."""
     markers = [(i, m) for i, f in enumerate(problem.frames) for m in f.markers]
     points = marker_points(problem, [m for _, m in markers], board)
-    columns = [12 * k + np.arange(m.whitening.shape[1]) for k, (_, m) in enumerate(markers)]
+    C = problem.points_per_marker
+    columns = [3 * C * k + np.arange(m.whitening.shape[1]) for k, (_, m) in enumerate(markers)]
     heights = [len(m.whitening) for _, m in markers]
     return StackedFrames(
         points,
-        np.repeat([i for i, _ in markers], 4),
+        np.repeat([i for i, _ in markers], C),
         np.array([f.T_base_flange for f in problem.frames]),
         np.concatenate(columns),
         np.concatenate([m.measured for _, m in markers]),
@@ -94,6 +95,6 @@ def predict_frames(
         return StackedPrediction(residual)
     return StackedPrediction(
         residual,
-        whitened_point_rows(stacked.whitening, stacked.selected, pred.J_state),
-        whitened_point_rows(stacked.whitening, stacked.selected, pred.J_flange),
+        whitened_point_rows(stacked.whitening, stacked.selected, pred.J_state, problem.points_per_marker),
+        whitened_point_rows(stacked.whitening, stacked.selected, pred.J_flange, problem.points_per_marker),
     )

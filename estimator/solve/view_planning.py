@@ -33,7 +33,7 @@ from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 from estimator.solve.measurement_model import HandEyeState
 from estimator.solve.observability import frame_information
 from estimator.solve.problem import build_problem
-from estimator.targets.board import BoardDefinition
+from estimator.targets.target import Target
 
 CRITERIA = ("d-optimal", "worst-direction")
 # The prior that keeps the first views' criteria finite: 1 m and 1 rad, far wider than any view.
@@ -105,7 +105,7 @@ def reachable(
 
 def view_informations(
     waypoints: Sequence[Waypoint],
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     T_flange_cam: np.ndarray,
     T_base_board: np.ndarray,

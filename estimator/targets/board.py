@@ -130,7 +130,6 @@ class BoardDefinition:
         d = {
             "format": "hec-board",
             "version": 1,
-            "kind": self.kind,
             "name": self.name,
             "size_m": list(self.size_m),
             "marker_size_m": self.marker_size_m,

@@ -85,7 +85,7 @@ from estimator.solve.view_planning import (  # noqa: E402
     predicted_sigmas,
     view_informations,
 )
-from estimator.targets.board import BoardDefinition  # noqa: E402
+from estimator.targets.target import Target  # noqa: E402
 from experiments.bench.view_planning_report import (  # noqa: E402
     ACHIEVED_COUNTS,
     MAX_VIEWS,
@@ -206,7 +206,7 @@ def plan(
 
 def _calibrate(
     observations: list[FrameObservations],
-    board: BoardDefinition,
+    board: Target,
     intrinsics: CameraIntrinsics,
     robot: RobotPoseNoise,
     arm: ReportedArm | None,

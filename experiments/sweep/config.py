@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from estimator.io.tomlfile import read_toml
+from estimator.targets.target import BoardDefinitionError
 from experiments.sweep.parameters import (
     ERROR_SOURCES,
     FIDELITIES,
@@ -71,6 +72,7 @@ def scenario_defaults(scenario: Scenario) -> dict[str, Any]:
             tuple(n for n in ERROR_SOURCES if getattr(scenario.errors, n).enabled)
         ),
         "mount": "fixed",
+        "board": scenario.board.definition,
     }
 
 
@@ -96,6 +98,8 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
         on = rgb.get("enabled", True) or params["rgb_sigma_grey"] > 0
         noise["rgb"] = {**rgb, "enabled": on, "sigma": params["rgb_sigma_grey"]}
     data["noise"] = noise
+    if "board" in params:
+        data["board"] = {**data.get("board", {}), "definition": params["board"]}
     if "error_sources" in params:
         on = error_source_set(params["error_sources"])
         errors = {k: dict(v) for k, v in data.get("errors", {}).items()}
@@ -277,8 +281,8 @@ def _cells(config: SweepConfig) -> list[Cell]:
             )
         params = {k: params[k] for k in columns}
         try:
-            cell_scenario(base, base_dir, params, source=f"{config.path} (cell {index})")
-        except ScenarioError as exc:
+            cell_scenario(base, base_dir, params, source=f"{config.path} (cell {index})").board_definition()
+        except (ScenarioError, BoardDefinitionError) as exc:
             raise SweepConfigError(str(exc)) from None
         cells.append(Cell(index, f"c{index:02d}", params))
     return cells

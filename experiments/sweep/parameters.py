@@ -135,6 +135,15 @@ PARAMETERS: dict[str, Parameter] = {
             "magnitudes, the others off (default: those the scenario has on)",
         ),
         Parameter(
+            "board",
+            str,
+            (RENDER,),
+            "a board name in models/boards/ or a board file relative to the scenario",
+            lambda v: isinstance(v, str) and v != "",
+            "the calibration target (scenario board.definition): any kind, for example hec_8qr, "
+            "charuco_11x6, chessboard_11x6, aprilgrid_6x3",
+        ),
+        Parameter(
             "mount",
             str,
             BOTH,
