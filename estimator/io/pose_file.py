@@ -1,0 +1,222 @@
+"""Robot poses in other people's conventions: what a pose file's numbers mean, and reading one.
+
+A pose is written as a translation then a rotation, one pose per row (CSV) or entry (JSON):
+
+- ``quat-wxyz`` / ``quat-xyzw``: x y z then a unit quaternion, scalar first / last (7 numbers);
+- ``rotvec``: x y z then a rotation vector (axis times angle), as UR controllers report (6);
+- ``euler-SEQ``: x y z then three angles about the axes SEQ in order, scipy's convention: lower
+  case (``xyz``) about the fixed axes, upper case (``XYZ``) about the moving ones (6);
+- ``matrix``: the 4x4 homogeneous matrix, row-major (16).
+
+Angles in ``rad`` or ``deg`` (rotvec and Euler), lengths in ``m`` or ``mm``. Direction
+``base-to-flange``: each pose is T_base_flange, the flange in the base frame (UR's and ROS tf's
+base -> tool0); ``flange-to-base``: each is its inverse, T_flange_base.
+
+CSV files have a header row; a column named ``image`` (or ``frame``) names the pose's image, the
+others in order are the pose's numbers (their names are free). JSON files hold a list of
+``{"image": NAME, "pose": [numbers]}`` or an object ``{NAME: [numbers], ...}``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from estimator.geometry.transforms import invert
+
+EULER_SEQUENCES = tuple(
+    s for case in (str.lower, str.upper) for s in map(case, ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx"))
+)
+ROTATIONS = ("quat-wxyz", "quat-xyzw", "rotvec", "matrix", *(f"euler-{s}" for s in EULER_SEQUENCES))
+DIRECTIONS = ("base-to-flange", "flange-to-base")
+NAME_COLUMNS = ("image", "frame")
+# A rotation matrix whose R^T R is off identity by more than this is not one.
+ORTHONORMAL_TOLERANCE = 1e-4
+UNIT_QUATERNION_TOLERANCE = 1e-3
+
+
+class PoseFileError(ValueError):
+    """A pose file, or a convention, that cannot be read; the message names the file and field."""
+
+
+@dataclass(frozen=True)
+class PoseConvention:
+    """What a pose file's numbers mean (module doc)."""
+
+    rotation: str = "quat-wxyz"
+    angle_unit: str = "rad"
+    length_unit: str = "m"
+    direction: str = "base-to-flange"
+
+    def __post_init__(self) -> None:
+        for name, value, allowed in (
+            ("rotation", self.rotation, ROTATIONS),
+            ("angle_unit", self.angle_unit, ("rad", "deg")),
+            ("length_unit", self.length_unit, ("m", "mm")),
+            ("direction", self.direction, DIRECTIONS),
+        ):
+            if value not in allowed:
+                raise PoseFileError(
+                    f"pose convention: {name} must be one of {', '.join(allowed)}, got {value!r}"
+                )
+
+    @property
+    def values_per_pose(self) -> int:
+        return {"matrix": 16, "quat-wxyz": 7, "quat-xyzw": 7}.get(self.rotation, 6)
+
+    def to_dict(self) -> dict:
+        return {
+            "rotation": self.rotation,
+            "angle_unit": self.angle_unit,
+            "length_unit": self.length_unit,
+            "direction": self.direction,
+        }
+
+
+def poses_from_values(values: np.ndarray, convention: PoseConvention, where: str = "poses") -> np.ndarray:
+    """(N, 4, 4) T_base_flange (metres) from (N, k) numbers in a convention; where: what the
+    numbers are, for the errors (which name the row)."""
+    values = np.asarray(values, dtype=np.float64)
+    k = convention.values_per_pose
+    if values.ndim != 2 or values.shape[1] != k:
+        raise PoseFileError(
+            f"{where}: a {convention.rotation} pose has {k} numbers, got shape {values.shape}"
+        )
+    bad = ~np.isfinite(values).all(axis=1)
+    if bad.any():
+        raise PoseFileError(f"{where}: pose {int(np.argmax(bad))} has a NaN or infinite number")
+    scale = 1e-3 if convention.length_unit == "mm" else 1.0
+    T = np.tile(np.eye(4), (len(values), 1, 1))
+    if convention.rotation == "matrix":
+        T[:] = values.reshape(-1, 4, 4)
+        T[:, :3, 3] *= scale
+        _check_matrices(T, where)
+    else:
+        T[:, :3, 3] = scale * values[:, :3]
+        T[:, :3, :3] = _rotations(values[:, 3:], convention, where)
+    return T if convention.direction == "base-to-flange" else np.array([invert(t) for t in T])
+
+
+def values_from_poses(T_base_flange: np.ndarray, convention: PoseConvention) -> np.ndarray:
+    """(N, k) the numbers of (N, 4, 4) T_base_flange (metres) in a convention: poses_from_values'
+    inverse (quaternions with a non-negative scalar)."""
+    T = np.asarray(T_base_flange, dtype=np.float64)
+    if convention.direction == "flange-to-base":
+        T = np.array([invert(t) for t in T])
+    scale = 1e3 if convention.length_unit == "mm" else 1.0
+    if convention.rotation == "matrix":
+        out = T.copy()
+        out[:, :3, 3] *= scale
+        return out.reshape(-1, 16)
+    rotation, degrees = Rotation.from_matrix(T[:, :3, :3]), convention.angle_unit == "deg"
+    if convention.rotation.startswith("quat"):
+        wxyz = convention.rotation == "quat-wxyz"
+        angles = rotation.as_quat(canonical=True, scalar_first=wxyz)
+    elif convention.rotation == "rotvec":
+        angles = rotation.as_rotvec(degrees=degrees)
+    else:
+        angles = rotation.as_euler(convention.rotation.removeprefix("euler-"), degrees=degrees)
+    return np.column_stack([scale * T[:, :3, 3], angles])
+
+
+def _rotations(angles: np.ndarray, convention: PoseConvention, where: str) -> np.ndarray:
+    """(N, 3, 3) from the rotation numbers (N, 3) or (N, 4)."""
+    rotation, degrees = convention.rotation, convention.angle_unit == "deg"
+    if rotation.startswith("quat"):
+        norm = np.linalg.norm(angles, axis=1)
+        off = np.abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE
+        if off.any():
+            i = int(np.argmax(off))
+            raise PoseFileError(
+                f"{where}: pose {i}'s quaternion has norm {norm[i]:.4g}, not 1 (is it another rotation kind?)"
+            )
+        return Rotation.from_quat(angles, scalar_first=rotation == "quat-wxyz").as_matrix()
+    if rotation == "rotvec":
+        return Rotation.from_rotvec(angles, degrees=degrees).as_matrix()
+    return Rotation.from_euler(rotation.removeprefix("euler-"), angles, degrees=degrees).as_matrix()
+
+
+def _check_matrices(T: np.ndarray, where: str) -> None:
+    R = T[:, :3, :3]
+    error = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    bottom = np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1)
+    bad = (error > ORTHONORMAL_TOLERANCE) | (bottom > 1e-9) | (np.linalg.det(R) < 0.0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise PoseFileError(
+            f"{where}: pose {i} is not a rigid transform (rotation part off orthonormal by {error[i]:.2g}, "
+            f"last row {T[i, 3].tolist()}); is the matrix column-major or scaled?"
+        )
+
+
+def read_pose_values(path: str | Path) -> tuple[list[str | None], np.ndarray]:
+    """The image names (None where the file gives none) and the (N, k) numbers of a CSV or JSON
+    pose file (module doc); errors name the file, the row and the field."""
+    path = Path(path)
+    if not path.is_file():
+        raise PoseFileError(f"{path}: pose file not found")
+    if path.suffix.lower() == ".json":
+        return _read_json(path)
+    return _read_csv(path)
+
+
+def _read_csv(path: Path) -> tuple[list[str | None], np.ndarray]:
+    with open(path, newline="") as f:
+        rows = [r for r in csv.reader(f) if r and any(cell.strip() for cell in r)]
+    if len(rows) < 2:
+        raise PoseFileError(f"{path}: expected a header row and at least one pose")
+    header = [h.strip() for h in rows[0]]
+    name_column = next((i for i, h in enumerate(header) if h.lower() in NAME_COLUMNS), None)
+    names: list[str | None] = []
+    values = []
+    for line, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise PoseFileError(f"{path}: line {line} has {len(row)} fields, the header {len(header)}")
+        numbers = []
+        for column, cell in enumerate(row):
+            if column == name_column:
+                continue
+            try:
+                numbers.append(float(cell))
+            except ValueError:
+                raise PoseFileError(
+                    f"{path}: line {line}, column '{header[column]}': not a number: {cell!r}"
+                ) from None
+        names.append(row[name_column].strip() if name_column is not None else None)
+        values.append(numbers)
+    return names, np.array(values)
+
+
+def _read_json(path: Path) -> tuple[list[str | None], np.ndarray]:
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise PoseFileError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(data, dict):
+        entries = [{"image": k, "pose": v} for k, v in data.items()]
+    elif isinstance(data, list):
+        entries = data
+    else:
+        raise PoseFileError(f"{path}: expected a list of {{'image', 'pose'}} or an object of poses")
+    names: list[str | None] = []
+    values = []
+    for i, entry in enumerate(entries):
+        pose = entry.get("pose") if isinstance(entry, dict) else None
+        if not isinstance(pose, list) or not all(isinstance(v, int | float) for v in np.ravel(pose).tolist()):
+            raise PoseFileError(f"{path}: entry {i}: field 'pose' should be a list of numbers, got {pose!r}")
+        names.append(entry.get("image"))
+        values.append(np.ravel(pose).tolist())
+    if not values or len({len(v) for v in values}) != 1:
+        raise PoseFileError(f"{path}: every pose must have the same count of numbers (and there must be one)")
+    return names, np.array(values, dtype=np.float64)
+
+
+def read_pose_file(path: str | Path, convention: PoseConvention) -> tuple[list[str | None], np.ndarray]:
+    """The image names and the (N, 4, 4) T_base_flange of a pose file in a convention."""
+    names, values = read_pose_values(path)
+    return names, poses_from_values(values, convention, where=str(path))
