@@ -1,0 +1,148 @@
+"""Which pose convention fits the data: the common mistakes tried on imported robot poses.
+
+Most wrong hand-eye results come from reading the robot's poses in the wrong convention: poses
+inverted (flange-to-base for base-to-flange), a rotation vector read as Euler angles or the wrong
+Euler order, degrees for radians, millimetres for metres, quaternions the other way round. Given
+the numbers of a pose file and the convention they were read with, the check reads them in each
+mistaken convention (alternative_conventions), calibrates each with OpenCV's Park method on the
+problem's detected board (cheap, no noise model) and compares the RMS pixel residual: a mistake
+is named when its residual is below MISTAKE_RATIO of the stated convention's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
+from estimator.solve.baselines import opencv_calibrate
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.problem import CalibrationInputError, CalibrationProblem
+
+# A mistaken convention is named when it leaves at most this fraction of the stated one's residual.
+MISTAKE_RATIO = 0.3
+_OPTION = {
+    "rotation": "--rotation",
+    "angle_unit": "--angle-unit",
+    "length_unit": "--length-unit",
+    "direction": "--pose-direction",
+}
+
+
+@dataclass(frozen=True)
+class ConventionTrial:
+    """One reading of the poses: the mistake in plain words ("" for the stated convention), its
+    convention, the RMS pixel residual of a Park calibration with it (inf when it fails) and the
+    convention's fields that differ from the stated one."""
+
+    mistake: str
+    convention: PoseConvention
+    residual_px: float
+    changed_fields: tuple[str, ...] = ()
+
+    @property
+    def option(self) -> str:
+        """The options that select this convention, for example '--pose-direction flange-to-base'."""
+        return " ".join(
+            f"{_OPTION[k]} {v}" for k, v in self.convention.to_dict().items() if k in self.changed_fields
+        )
+
+
+@dataclass(frozen=True)
+class ConventionReport:
+    """The stated convention's trial, every mistake's, and the one that fits (or None)."""
+
+    stated: ConventionTrial
+    trials: list[ConventionTrial]
+    fits: ConventionTrial | None
+
+    @property
+    def message(self) -> str:
+        if self.fits is None:
+            return (
+                f"the robot poses fit the stated convention ({self.stated.residual_px:.2g} px RMS residual); "
+                "none of the common mistakes fits better"
+            )
+        return (
+            f"the robot poses look like {self.fits.mistake}: the residual drops from "
+            f"{self.stated.residual_px:.3g} px to {self.fits.residual_px:.3g} px; pass {self.fits.option}"
+        )
+
+
+def alternative_conventions(stated: PoseConvention) -> list[tuple[str, PoseConvention]]:
+    """The common mistakes from a stated convention: (what it means in words, the convention)."""
+    out = [
+        (
+            f"{_other(stated.direction)}: inverted",
+            replace(stated, direction=_other(stated.direction)),
+        ),
+        (
+            f"lengths in {_swap(stated.length_unit, 'm', 'mm')}",
+            replace(stated, length_unit=_swap(stated.length_unit, "m", "mm")),
+        ),
+    ]
+    rotation = stated.rotation
+    if rotation.startswith("quat"):
+        other = _swap(rotation, "quat-wxyz", "quat-xyzw")
+        out.append((f"quaternions {other.removeprefix('quat-')}", replace(stated, rotation=other)))
+    elif rotation != "matrix":
+        out.append(
+            (
+                f"angles in {_swap(stated.angle_unit, 'rad', 'deg')}",
+                replace(stated, angle_unit=_swap(stated.angle_unit, "rad", "deg")),
+            )
+        )
+        kinds = ["rotvec", *(f"euler-{s}" for s in EULER_SEQUENCES)]
+        for kind in kinds:
+            if kind != rotation:
+                words = (
+                    "a rotation vector" if kind == "rotvec" else f"Euler angles {kind.removeprefix('euler-')}"
+                )
+                out.append((words, replace(stated, rotation=kind)))
+    return out
+
+
+def check_pose_convention(
+    problem: CalibrationProblem, values: np.ndarray, stated: PoseConvention
+) -> ConventionReport:
+    """Try the stated convention and every mistake on the problem's board observations. values:
+    (N, k) the pose file's numbers of the dataset's frames, row i for frame i (problem frames
+    name theirs)."""
+    trials = [_trial(problem, values, "", stated)]
+    for mistake, convention in alternative_conventions(stated):
+        trials.append(_trial(problem, values, mistake, convention, stated))
+    stated_trial, others = trials[0], trials[1:]
+    best = min(others, key=lambda t: t.residual_px)
+    fits = best if best.residual_px < MISTAKE_RATIO * stated_trial.residual_px else None
+    return ConventionReport(stated_trial, others, fits)
+
+
+def _trial(
+    problem: CalibrationProblem,
+    values: np.ndarray,
+    mistake: str,
+    convention: PoseConvention,
+    stated: PoseConvention | None = None,
+) -> ConventionTrial:
+    changed = tuple(
+        k for k, v in convention.to_dict().items() if stated is not None and stated.to_dict()[k] != v
+    )
+    try:
+        T_base_flange = poses_from_values(values, convention)
+        frames = [replace(f, T_base_flange=T_base_flange[f.frame], joints=None) for f in problem.frames]
+        result = opencv_calibrate(
+            replace(problem, frames=frames, kinematics=None), MethodOptions(), "opencv-park"
+        )
+        residual = result.residual_rms_px
+    except (CalibrationInputError, PoseFileError, ValueError, np.linalg.LinAlgError):
+        residual = float("inf")
+    return ConventionTrial(mistake, convention, residual if np.isfinite(residual) else float("inf"), changed)
+
+
+def _other(direction: str) -> str:
+    return _swap(direction, "base-to-flange", "flange-to-base")
+
+
+def _swap(value: str, a: str, b: str) -> str:
+    return b if value == a else a
