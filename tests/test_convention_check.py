@@ -30,7 +30,7 @@ def _problem() -> tuple[CalibrationProblem, np.ndarray]:
         (
             PoseConvention("rotvec"),
             PoseConvention("rotvec", direction="flange-to-base"),
-            "flange-to-base: inverted",
+            "flange-to-base (inverted)",
             "--pose-direction flange-to-base",
         ),
         (PoseConvention("rotvec"), PoseConvention("euler-xyz"), "Euler angles xyz", "--rotation euler-xyz"),

@@ -74,7 +74,7 @@ def alternative_conventions(stated: PoseConvention) -> list[tuple[str, PoseConve
     """The common mistakes from a stated convention: (what it means in words, the convention)."""
     out = [
         (
-            f"{_other(stated.direction)}: inverted",
+            f"{_other(stated.direction)} (inverted)",
             replace(stated, direction=_other(stated.direction)),
         ),
         (
