@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shutil
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from experiments.sweep.command import add_parser, run
-from experiments.sweep.config import SweepConfigError, load_config
+from experiments.sweep.config import SweepConfigError, cell_scenario, load_config
 from experiments.sweep.rows import ROWS_FILE, SweepError, load_rows, row_columns
 from experiments.sweep.runner import rerun_trial, run_sweep, same_rows
 
@@ -180,3 +181,23 @@ def test_render_trial_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert (example / "preview" / "overview.png").is_file() and len(
         list((example / "overlay").glob("*.png"))
     ) == 5
+
+
+def test_a_board_in_the_grid_reaches_each_cell_and_an_unknown_one_is_named(tmp_path: Path) -> None:
+    board = json.loads((Path(__file__).parents[1] / "models" / "boards" / "hec_8qr.json").read_text())
+    board["size_m"] = [0.5, 0.3]
+    (tmp_path / "wide.json").write_text(json.dumps(board))
+    path = tmp_path / "boards.toml"
+    path.write_text(
+        f'fidelity = "render"\ntrials = 1\nmethods = ["ekf"]\nscenario = "{tmp_path / "s.toml"}"\n'
+        '[grid]\nboard = ["hec_8qr", "wide.json"]\n'
+    )
+    (tmp_path / "s.toml").write_text("")
+    config = load_config(path)
+    boards = [
+        cell_scenario(config.scenario.to_dict(), config.scenario.base_dir, c.parameters) for c in config.cells
+    ]
+    assert [b.board_definition().size_m for b in boards] == [(0.4, 0.22), (0.5, 0.3)]
+    path.write_text(path.read_text().replace("wide.json", "missing.json"))
+    with pytest.raises(SweepConfigError, match="missing.json"):
+        load_config(path)
