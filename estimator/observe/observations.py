@@ -329,7 +329,8 @@ def save_observations(
         "detector": settings.to_dict(),
         "depth_noise": depth_noise.to_dict(),
         "corner_noise": corner_noise,
-        "points": "centre, corner 0..3 (top-left, top-right, bottom-right, bottom-left of the marker)",
+        "points": "centre, then the marker's points: corners 0..3 (top-left, top-right, bottom-right, "
+        "bottom-left) of a QR code or tag, the point itself for a chessboard corner",
         "units": "pixels; metres in the camera frame (x right, y down, z forward)",
         "frames": [
             {

@@ -1,0 +1,115 @@
+"""Which target is best? Every board kind rendered on the same default scenario (trajectory, noise,
+camera, board pose and sheet size), detected, graded against the truth and calibrated.
+
+Per board: the share of fully visible markers found with the right ID, wrong IDs, corner RMS
+error and mean normalised corner error (e^T C^-1 e / 2, 1 when the covariances are honest),
+detection time per frame (including the depth fit), and per method the median and worst
+translation and rotation error of T_flange_cam over the seeds with its mean pose NEES (6 when the
+reported covariance is honest).
+
+    .venv/bin/python -m experiments.bench.targets [--seeds 3] [--boards NAME,...]   (default: every
+                                                                            board in models/boards/)
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import math
+import time
+
+import numpy as np
+
+import sim  # noqa: F401  (selects the GL backend before mujoco loads)
+from estimator.geometry.lie import pose_nees
+from estimator.geometry.transforms import pose_error
+from estimator.io.models import models_dir
+from estimator.observe.grading import grade_observations
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.methods import solve
+from estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+from estimator.targets.qr import DetectorSettings
+from experiments.detection import detect_dataset
+from sim.scenario import scenario_from_dict
+from sim.simulate import simulate_in_memory
+
+BOARDS = tuple(sorted(p.stem for p in (models_dir() / "boards").glob("*.json")))
+METHODS = ("ekf", "batch", "opencv-park", "opencv-daniilidis")
+
+
+def board_trial(board: str, seed: int) -> dict:
+    """Render the default scenario with this board, detect, grade and calibrate: the measurement
+    summary (grading.MeasurementErrors.summary), ms_per_frame, frames, and per method its
+    (translation mm, rotation deg, pose NEES) or the failure's message."""
+    scenario = scenario_from_dict({"board": {"definition": board}}, source=f"bench {board}")
+    with contextlib.redirect_stderr(io.StringIO()):
+        dataset = simulate_in_memory(scenario, seed, name=f"{board} seed {seed}")
+    start = time.perf_counter()
+    observations, _ = detect_dataset(dataset, DetectorSettings(), quiet=True)
+    ms_per_frame = 1e3 * (time.perf_counter() - start) / len(dataset)
+    truth = dataset.ground_truth
+    result = grade_observations(observations, truth, dataset.board, dataset.intrinsics).summary()
+    result |= {"ms_per_frame": ms_per_frame, "frames": len(dataset)}
+    problem = build_problem(
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        dataset_robot_noise(dataset),
+        arm=dataset_arm(dataset),
+    )
+    for method in METHODS:
+        try:
+            calibration = solve(method, problem, MethodOptions(), observations)
+        except Exception as exc:  # noqa: BLE001  (a method's failure is its entry)
+            result[method] = f"{type(exc).__name__}: {exc}"
+            continue
+        error_m, error_rad = pose_error(calibration.T_flange_cam, truth.T_flange_cam)
+        nees = math.nan
+        if calibration.covariance is not None:
+            nees = pose_nees(calibration.T_flange_cam, truth.T_flange_cam, calibration.covariance)
+        result[method] = (1e3 * error_m, math.degrees(error_rad), nees)
+    return result
+
+
+def _table(board: str, trials: list[dict]) -> str:
+    mean = {
+        k: float(np.mean([t[k] for t in trials])) for k in ("corner_rms_px", "corner_nees", "ms_per_frame")
+    }
+    visible = sum(t["visible_markers"] for t in trials)
+    found = sum(t["detected_visible"] for t in trials)
+    lines = [
+        f"{board}: {found}/{visible} fully visible markers found ({found / max(visible, 1):.1%}), "
+        f"{sum(t['wrong_id'] for t in trials)} wrong IDs, corner RMS {mean['corner_rms_px']:.3f} px, "
+        f"normalised corner error {mean['corner_nees']:.2f}, {mean['ms_per_frame']:.0f} ms/frame "
+        f"({trials[0]['frames']} frames)"
+    ]
+    for method in METHODS:
+        ok = [t[method] for t in trials if isinstance(t[method], tuple)]
+        failed = [t[method] for t in trials if not isinstance(t[method], tuple)]
+        if not ok:
+            lines.append(f"  {method:18s} failed: {failed[0]}")
+            continue
+        mm, deg, nees = (np.array(v) for v in zip(*ok, strict=True))
+        lines.append(
+            f"  {method:18s} translation median {np.median(mm):.3f} max {mm.max():.3f} mm, rotation median "
+            f"{np.median(deg):.4f} max {deg.max():.4f} deg"
+            + (f", NEES {np.mean(nees[np.isfinite(nees)]):.1f}" if np.isfinite(nees).any() else "")
+            + (f" ({len(failed)} failed: {failed[0]})" if failed else "")
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per board (default 3)")
+    parser.add_argument("--boards", default=",".join(BOARDS), help="comma-separated board names")
+    args = parser.parse_args(argv)
+    for board in args.boards.split(","):
+        print(_table(board, [board_trial(board, seed) for seed in range(args.seeds)]), flush=True)
+
+
+if __name__ == "__main__":
+    main()
