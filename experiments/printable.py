@@ -11,30 +11,32 @@ import numpy as np
 from PIL import Image
 
 from estimator.io.files import write_atomic
-from estimator.targets.board import BoardDefinition, board_image
 from estimator.targets.kinds import find_board, save_board
+from estimator.targets.target import Target
 
 SCALE_BAR_M = 0.1
-MIN_MODULE_PX = 4  # a QR module drawn narrower than this prints too coarse to keep its corners exact
+# The smallest printed feature (a QR module, a tag bit, a square) drawn narrower than this prints
+# too coarse to keep its corners exact.
+MIN_FEATURE_PX = 4
 
 
-def printable_board(board: BoardDefinition, dpi: float) -> np.ndarray:
-    """(H, W) uint8 sheet at ``dpi`` with the board name, marker IDs and a 100 mm scale bar
-    drawn in the margins (outside every quiet zone)."""
+def printable_board(board: Target, dpi: float) -> np.ndarray:
+    """(H, W) uint8 sheet at ``dpi`` with the board name and a 100 mm scale bar drawn in the
+    bottom margin (outside every marker and its margin)."""
     px_per_m = dpi / 0.0254
-    module_px = board.marker_size_m / board.modules * px_per_m
-    if not module_px >= MIN_MODULE_PX:
-        needed = MIN_MODULE_PX * board.modules / board.marker_size_m * 0.0254
+    feature_px = board.feature_m * px_per_m
+    if not feature_px >= MIN_FEATURE_PX:
+        needed = MIN_FEATURE_PX / board.feature_m * 0.0254
         raise ValueError(
-            f"at {dpi:g} dpi a QR module of board '{board.name}' is {module_px:.1f} px wide; give --dpi "
-            f"{needed:.0f} or more"
+            f"at {dpi:g} dpi the smallest printed feature of {board.kind} board '{board.name}' is "
+            f"{feature_px:.1f} px wide; give --dpi {needed:.0f} or more"
         )
-    sheet = board_image(board, px_per_m)
+    sheet = board.image(px_per_m)
     h, w = sheet.shape
     font_scale = max(0.4, dpi / 300 * 0.9)
     thickness = max(1, round(dpi / 150))
     margin_y = round(0.008 * px_per_m)
-    label = f"{board.name}  marker {board.marker_size_m * 1000:g} mm  print at {dpi:g} dpi, 100% scale"
+    label = f"{board.name}  {board.kind}  print at {dpi:g} dpi, 100% scale"
     cv2.putText(
         sheet,
         label,
@@ -62,14 +64,14 @@ def printable_board(board: BoardDefinition, dpi: float) -> np.ndarray:
     return sheet
 
 
-def save_printable_board(board: BoardDefinition, path: str | Path, dpi: float = 300.0) -> Path:
+def save_printable_board(board: Target, path: str | Path, dpi: float = 300.0) -> Path:
     """Write the sheet as .png or .pdf with its DPI recorded, so it prints at true scale (through a
     temporary file and a rename: an interruption leaves no half-written sheet)."""
     path = Path(path)
     return write_atomic(path, _encoded_sheet(board, path, dpi))
 
 
-def _encoded_sheet(board: BoardDefinition, path: Path, dpi: float) -> bytes:
+def _encoded_sheet(board: Target, path: Path, dpi: float) -> bytes:
     """The sheet as the bytes of the PNG or PDF file path names."""
     if path.suffix.lower() not in (".png", ".pdf"):
         raise ValueError(f"{path}: choose a .png or .pdf file name")

@@ -151,10 +151,10 @@ def _true_kinematics(nominal: URKinematics, arm: ArmErrors, rng: np.random.Gener
 
 def _printed_board(board: Target, errors: BoardErrors, rng: np.random.Generator) -> PrintedBoard:
     scale = (1.0 + errors.scale_error[0], 1.0 + errors.scale_error[1])
-    if not isinstance(board, BoardDefinition):
+    if not board.markers_placed_one_by_one:
         if errors.marker_placement_sigma_m:
             raise ValueError(
-                f"errors.board.marker_placement_sigma_m places QR markers one by one; board "
+                f"errors.board.marker_placement_sigma_m places markers one by one; board "
                 f"'{board.name}' is a {board.kind} board, printed as one pattern (set it to 0)"
             )
         return PrintedBoard(board, scale, tuple(errors.bend_m))

@@ -25,6 +25,8 @@ class CornerBoard:
     qr: BoardDefinition
     kind = "corners"
     points_per_marker = 1
+    markers_placed_one_by_one = False
+    corners_homography_fitted = False
 
     @property
     def name(self) -> str:

@@ -197,7 +197,7 @@ def marker_points(problem: CalibrationProblem, markers: list, board: bool) -> np
 def homography_fitted(problem: CalibrationProblem) -> bool:
     """Whether the corners come from one homography fit over each whole marker (the QR detector's),
     so that lens distortion biases them (estimator.geometry.marker_fit_bias)."""
-    return problem.board.kind == "qr"
+    return problem.board.corners_homography_fitted
 
 
 def _rotated(v: np.ndarray, R: np.ndarray) -> np.ndarray:

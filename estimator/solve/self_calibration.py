@@ -152,9 +152,9 @@ def available_groups(problem: CalibrationProblem, arm_misfit: bool) -> tuple[str
     """The NUISANCE_GROUPS to free: the arm's kinematics only when the problem knows them and the
     flange poses fit worse than their noise (arm_misfit; freed for a misfit of the pixels alone,
     the 24 corrections moved a 5-view mount by 0.8 mm on an exact arm); the marker shifts only on
-    a QR board, whose markers are placed one by one (the other kinds print as one pattern)."""
+    a board whose markers are placed one by one (Target.markers_placed_one_by_one)."""
     arm = problem.kinematics is not None and arm_misfit
-    placed = problem.board.kind == "qr"
+    placed = problem.board.markers_placed_one_by_one
     return tuple(g for g in NUISANCE_GROUPS if (g != "kinematics" or arm) and (g != MARKER_SHIFTS or placed))
 
 

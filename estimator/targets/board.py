@@ -45,6 +45,8 @@ class BoardDefinition:
 
     kind = "qr"
     points_per_marker = 4
+    markers_placed_one_by_one = True
+    corners_homography_fitted = True
 
     @property
     def marker_ids(self) -> list[int]:

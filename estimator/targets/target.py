@@ -51,6 +51,19 @@ class Target(Protocol):
         ...
 
     @property
+    def markers_placed_one_by_one(self) -> bool:
+        """Whether each marker may sit off its nominal place on its own (QR codes pasted or
+        printed one by one): the print model shifts them and self-calibration may free a shift
+        per marker. False for kinds printed as one pattern."""
+        ...
+
+    @property
+    def corners_homography_fitted(self) -> bool:
+        """Whether each marker's corners come from one homography fitted over the whole marker,
+        so that lens distortion biases them (estimator.geometry.marker_fit_bias)."""
+        ...
+
+    @property
     def feature_m(self) -> float:
         """The smallest printed feature a detector must resolve (a QR module, a tag bit, a
         chessboard square): below a few pixels per feature nothing is found."""
@@ -76,6 +89,11 @@ class Target(Protocol):
 
     def to_dict(self) -> dict:
         """The board file's content (format hec-board version 1)."""
+        ...
+
+    def pinned(self) -> Target:
+        """The definition of exactly what is printed (a QR board states every mask the qrcode
+        package chose); kinds with nothing left to choose return themselves."""
         ...
 
     def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
