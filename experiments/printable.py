@@ -20,9 +20,16 @@ SCALE_BAR_M = 0.1
 MIN_FEATURE_PX = 4
 
 
+# Lettering and bar: text this tall, this far from the sheet's bottom and side edges (inside most
+# printers' unprintable border).
+TEXT_HEIGHT_M = 0.002
+EDGE_M = 0.005
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
 def printable_board(board: Target, dpi: float) -> np.ndarray:
-    """(H, W) uint8 sheet at ``dpi`` with the board name and a 100 mm scale bar drawn in the
-    bottom margin (outside every marker and its margin)."""
+    """(H, W) uint8 sheet at ``dpi`` with the board name and a 100 mm scale bar on one line in the
+    bottom margin, below every marker and its margin (ValueError when that margin is too narrow)."""
     px_per_m = dpi / 0.0254
     feature_px = board.feature_m * px_per_m
     if not feature_px >= MIN_FEATURE_PX:
@@ -33,33 +40,27 @@ def printable_board(board: Target, dpi: float) -> np.ndarray:
         )
     sheet = board.image(px_per_m)
     h, w = sheet.shape
-    font_scale = max(0.4, dpi / 300 * 0.9)
-    thickness = max(1, round(dpi / 150))
-    margin_y = round(0.008 * px_per_m)
+    font_scale = TEXT_HEIGHT_M * px_per_m / cv2.getTextSize("0", _FONT, 1.0, 1)[0][1]
+    thickness = max(1, round(font_scale * 1.5))
+    edge = round(EDGE_M * px_per_m)
     label = f"{board.name}  {board.kind}  print at {dpi:g} dpi, 100% scale"
-    cv2.putText(
-        sheet,
-        label,
-        (margin_y, h - margin_y),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        font_scale,
-        0,
-        thickness,
-        cv2.LINE_AA,
-    )
+    (_, text_h), _ = cv2.getTextSize(label, _FONT, font_scale, thickness)
+    lowest_m = float(board.all_corners()[..., 1].min()) - board.visible_margin_m
+    free_px = (board.size_m[1] / 2 + lowest_m) * px_per_m
+    if free_px < edge + text_h + 2 * thickness:
+        raise ValueError(
+            f"board '{board.name}' leaves {free_px / px_per_m * 1000:.1f} mm below its markers; the label "
+            f"and scale bar need {(edge + text_h + 2 * thickness) / px_per_m * 1000:.1f} mm"
+        )
+    baseline = h - 1 - edge
+    cv2.putText(sheet, label, (edge, baseline), _FONT, font_scale, 0, thickness, cv2.LINE_AA)
     bar = round(SCALE_BAR_M * px_per_m)
-    y = h - 3 * margin_y
-    x1 = w - margin_y - bar
-    cv2.rectangle(sheet, (x1, y - thickness * 3), (x1 + bar, y), 0, -1)
+    x1 = w - edge - bar
+    # cv2.rectangle includes both end pixels: bar pixels from x1 to x1 + bar - 1.
+    cv2.rectangle(sheet, (x1, baseline - text_h), (x1 + bar - 1, baseline), 0, -1)
+    (bar_label_w, _), _ = cv2.getTextSize("100 mm", _FONT, font_scale, thickness)
     cv2.putText(
-        sheet,
-        "100 mm",
-        (x1, y - 4 * thickness - 4),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        font_scale,
-        0,
-        thickness,
-        cv2.LINE_AA,
+        sheet, "100 mm", (x1 - bar_label_w - edge, baseline), _FONT, font_scale, 0, thickness, cv2.LINE_AA
     )
     return sheet
 

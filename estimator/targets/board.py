@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from estimator.targets.qr_symbol import ERROR_CORRECTION, SymbolSpec
+from estimator.targets.sheet import CellBlock, draw_sheet
 from estimator.targets.target import BoardDefinitionError
 
 # Corner offsets of an upright marker, in units of its side, board frame (x right, y up).
@@ -272,31 +273,10 @@ def _kind_name(kind: type | tuple[type, ...]) -> str:
 
 
 def board_image(board: BoardDefinition, px_per_m: float, supersample: int = 4) -> np.ndarray:
-    """Render the sheet as a (H, W) uint8 image, white with black modules.
-
-    Row 0 is the sheet's top edge (largest y), column 0 its left edge.
-    The sheet spans exactly the image: a pixel is size_m[0] / W wide. Edges
-    that fall inside a pixel are area-averaged over supersample^2 samples.
-    """
-    w_m, h_m = board.size_m
-    W, H = round(w_m * px_per_m), round(h_m * px_per_m)
-    ss = supersample
-    px_x, px_y = w_m / (W * ss), h_m / (H * ss)
-    dark = np.zeros((H * ss, W * ss), dtype=bool)
+    """Render the sheet as a (H, W) uint8 image, white with black modules (sheet.draw_sheet)."""
+    blocks = []
     for marker_id in board.marker_ids:
         modules = board.module_matrix(marker_id)
-        n = modules.shape[0]
-        module = board.marker_size_m / n
         left, top = board.marker_corners(marker_id)[0, :2]
-        cols = np.arange(W * ss)
-        rows = np.arange(H * ss)
-        x = -w_m / 2 + (cols + 0.5) * px_x
-        y = h_m / 2 - (rows + 0.5) * px_y
-        mc = np.floor((x - left) / module).astype(int)
-        mr = np.floor((top - y) / module).astype(int)
-        in_c = (mc >= 0) & (mc < n)
-        in_r = (mr >= 0) & (mr < n)
-        rr, cc = np.nonzero(in_r)[0], np.nonzero(in_c)[0]
-        dark[np.ix_(rr, cc)] |= modules[np.ix_(mr[rr], mc[cc])]
-    coverage = dark.reshape(H, ss, W, ss).mean(axis=(1, 3))
-    return np.round(255.0 * (1.0 - coverage)).astype(np.uint8)
+        blocks.append(CellBlock(modules, float(left), float(top), board.marker_size_m / modules.shape[0]))
+    return draw_sheet(board.size_m, blocks, px_per_m, supersample)

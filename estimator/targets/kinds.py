@@ -13,6 +13,7 @@ from pathlib import Path
 from estimator.io.files import write_atomic
 from estimator.io.jsonfile import read_json_object
 from estimator.io.models import models_dir
+from estimator.targets.aprilgrid import AprilGridBoard, AprilGridDetector
 from estimator.targets.board import BoardDefinition
 from estimator.targets.qr import DetectorSettings, QRDetector
 from estimator.targets.target import BoardDefinitionError, Target, TargetDetector
@@ -22,6 +23,7 @@ KINDS: dict[
     str, tuple[Callable[[dict, str], Target], Callable[[Target, DetectorSettings], TargetDetector]]
 ] = {
     "qr": (BoardDefinition.from_dict, QRDetector),
+    "aprilgrid": (AprilGridBoard.from_dict, AprilGridDetector),
 }
 
 

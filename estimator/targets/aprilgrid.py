@@ -1,0 +1,317 @@
+"""The AprilGrid: a grid of AprilTag 36h11 tags as Kalibr lays them out, and its detector.
+
+Geometry (Kalibr's target yaml, in metres): ``tag_cols`` x ``tag_rows`` tags of side
+``tag_size_m`` (edge to edge of the black border), ``tag_spacing`` times the side apart, each
+tag drawn with ``border_bits`` black cells around its 6 x 6 code (Kalibr prints 2), centred on
+the sheet. Tag IDs run as Kalibr's: ``first_id`` at the bottom-left, along x then up the rows.
+Kalibr also prints small black squares between the tags' corners; hec's sheet leaves them out
+(OpenCV's tag finder merges a tag with a square touching its corner) and a Kalibr print's are
+ignored where they do not touch the template's quiet zone.
+
+Corner order of every tag (Kalibr's): bottom-left, bottom-right, top-right, top-left of the
+upright tag, in hec's board frame (origin at the sheet centre, x right, y up, z out of the face).
+Kalibr's target frame has its origin at the bottom-left corner of tag ``first_id`` with the same
+axes, so p_kalibr = p_hec + (W / 2, H / 2, 0) with W, H the grid's outer width and height.
+
+Detection: OpenCV's ArucoDetector with the AprilTag 36h11 dictionary finds each tag and its ID;
+its corners are then refined by aligning the tag's known cells to the image (qr_fit.fit_marker,
+the QR codes' homography fit), which also gives their covariance.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from estimator.targets.detection import Detections, MarkerDetection, Rejection, image_problem, to_gray
+from estimator.targets.qr import DetectorSettings
+from estimator.targets.qr_fit import TEMPLATE_QUIET_MODULES, MarkerFitError, fit_marker
+from estimator.targets.sheet import CellBlock, draw_sheet
+from estimator.targets.target import BoardDefinitionError
+
+DICTIONARY = "DICT_APRILTAG_36h11"
+CODE_BITS = 6  # a 36h11 tag's code is 6 x 6 cells inside its black border
+# The corner fit's template follows the image's pixels per tag cell up to this (qr_fit.fit_marker):
+# at 3, 50 mm tags came out 0.04 px small (corner RMS 0.059 px); at 6-12 unbiased (0.014-0.018).
+MAX_TEMPLATE_PX_PER_CELL = 8
+# Error per coordinate image noise does not explain, pixels, at a tag corner and centre: the RMS on
+# noise-free renders of the default trajectory (aprilgrid_6x3: 17 views, 306 tags; the QR codes'
+# are 0.013 and 0.0036). The detector uses these or the settings' floors, whichever is larger.
+TAG_CORNER_FLOOR_PX = 0.027
+TAG_CENTER_FLOOR_PX = 0.0058
+# ArucoDetector's corners (top-left, top-right, bottom-right, bottom-left of the tag image) in
+# Kalibr's order (bottom-left, bottom-right, top-right, top-left).
+_KALIBR_FROM_ARUCO = np.array([3, 2, 1, 0])
+# Tag corner offsets in Kalibr's order, in units of the tag side (board frame, y up).
+_CORNER_OFFSETS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+
+
+@functools.lru_cache(maxsize=1)
+def _dictionary() -> cv2.aruco.Dictionary:
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, DICTIONARY))
+
+
+@functools.lru_cache(maxsize=4096)
+def tag_cells(tag_id: int, border_bits: int) -> np.ndarray:
+    """(n, n) bool, True where tag ``tag_id`` is black, row 0 at the top of the upright tag;
+    n = 6 + 2 border_bits. Read-only."""
+    n = CODE_BITS + 2 * border_bits
+    cells = cv2.aruco.generateImageMarker(_dictionary(), tag_id, n, borderBits=border_bits) < 128
+    cells.setflags(write=False)
+    return cells
+
+
+@dataclass(frozen=True)
+class AprilGridBoard:
+    """A Kalibr AprilGrid on a sheet (module doc); lengths in metres."""
+
+    name: str
+    size_m: tuple[float, float]
+    tag_cols: int
+    tag_rows: int
+    tag_size_m: float
+    tag_spacing: float
+    border_bits: int = 2
+    first_id: int = 0
+
+    kind = "aprilgrid"
+    points_per_marker = 4
+    markers_placed_one_by_one = False
+    corners_homography_fitted = True
+
+    @property
+    def marker_ids(self) -> list[int]:
+        return list(range(self.first_id, self.first_id + self.tag_cols * self.tag_rows))
+
+    @property
+    def feature_m(self) -> float:
+        """One cell of a tag."""
+        return self.tag_size_m / (CODE_BITS + 2 * self.border_bits)
+
+    @property
+    def visible_margin_m(self) -> float:
+        """The white cells around a tag the corner fit compares (qr_fit's template quiet zone)."""
+        return TEMPLATE_QUIET_MODULES * self.feature_m
+
+    @property
+    def grid_size_m(self) -> tuple[float, float]:
+        """(W, H): the grid's outer width and height, from the first tag's left edge to the last's right."""
+        pitch = self.tag_size_m * (1.0 + self.tag_spacing)
+        return (
+            (self.tag_cols - 1) * pitch + self.tag_size_m,
+            (self.tag_rows - 1) * pitch + self.tag_size_m,
+        )
+
+    def marker_center(self, marker_id: int) -> np.ndarray:
+        """(3,) the tag's centre in the board frame."""
+        k = marker_id - self.first_id
+        if not 0 <= k < self.tag_cols * self.tag_rows:
+            raise KeyError(f"tag {marker_id} is not on board {self.name!r}")
+        row, col = divmod(k, self.tag_cols)
+        pitch = self.tag_size_m * (1.0 + self.tag_spacing)
+        width, height = self.grid_size_m
+        return np.array(
+            [
+                -width / 2 + self.tag_size_m / 2 + col * pitch,
+                -height / 2 + self.tag_size_m / 2 + row * pitch,
+                0.0,
+            ]
+        )
+
+    def marker_corners(self, marker_id: int) -> np.ndarray:
+        """(4, 3) the tag's corners in the board frame, Kalibr's order (module doc)."""
+        center = self.marker_center(marker_id)
+        xy = center[:2] + _CORNER_OFFSETS * self.tag_size_m
+        return np.column_stack([xy, np.zeros(4)])
+
+    def all_corners(self) -> np.ndarray:
+        """(M, 4, 3) every tag's corners, ordered by marker_ids."""
+        return np.stack([self.marker_corners(i) for i in self.marker_ids])
+
+    def pinned(self) -> AprilGridBoard:
+        return self
+
+    def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
+        """The sheet as an (H, W) uint8 image (sheet.draw_sheet)."""
+        blocks = []
+        for marker_id in self.marker_ids:
+            cells = tag_cells(marker_id, self.border_bits)
+            left, top = self.marker_corners(marker_id)[3, :2]
+            blocks.append(CellBlock(cells, float(left), float(top), self.feature_m))
+        return draw_sheet(self.size_m, blocks, px_per_m, supersample)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "hec-board",
+            "version": 1,
+            "kind": self.kind,
+            "name": self.name,
+            "size_m": list(self.size_m),
+            "tag_cols": self.tag_cols,
+            "tag_rows": self.tag_rows,
+            "tag_size_m": self.tag_size_m,
+            "tag_spacing": self.tag_spacing,
+            "border_bits": self.border_bits,
+            "first_id": self.first_id,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "board definition") -> AprilGridBoard:
+        """Validate and build; errors name ``source`` and the field."""
+        name = d.get("name")
+        if not isinstance(name, str) or not name:
+            raise BoardDefinitionError(f"{source}: field 'name' should be a non-empty string, got {name!r}")
+        size = d.get("size_m")
+        if not (isinstance(size, list) and len(size) == 2 and all(_number(v) and v > 0 for v in size)):
+            raise BoardDefinitionError(
+                f"{source}: field 'size_m' should be [width, height] > 0, got {size!r}"
+            )
+        board = cls(
+            name=name,
+            size_m=(float(size[0]), float(size[1])),
+            tag_cols=_integer(d, "tag_cols", source, least=1),
+            tag_rows=_integer(d, "tag_rows", source, least=1),
+            tag_size_m=_positive(d, "tag_size_m", source),
+            tag_spacing=_positive(d, "tag_spacing", source),
+            border_bits=_integer(d, "border_bits", source, least=1, default=2),
+            first_id=_integer(d, "first_id", source, least=0, default=0),
+        )
+        last = board.marker_ids[-1]
+        if last >= _dictionary().bytesList.shape[0]:
+            raise BoardDefinitionError(
+                f"{source}: tags {board.first_id}-{last} do not exist: tag36h11 has IDs 0-"
+                f"{_dictionary().bytesList.shape[0] - 1} (fields 'first_id', 'tag_cols', 'tag_rows')"
+            )
+        width, height = board.grid_size_m
+        margin = board.visible_margin_m
+        if width + 2 * margin > board.size_m[0] + 1e-12 or height + 2 * margin > board.size_m[1] + 1e-12:
+            raise BoardDefinitionError(
+                f"{source}: the grid ({width * 1e3:.1f} x {height * 1e3:.1f} mm) with {margin * 1e3:.1f} mm "
+                f"of white around it does not fit on the sheet 'size_m' {list(board.size_m)}"
+            )
+        gap_m = board.tag_spacing * board.tag_size_m
+        if gap_m < margin:
+            raise BoardDefinitionError(
+                f"{source}: 'tag_spacing' {board.tag_spacing} leaves {gap_m * 1e3:.1f} mm between tags; the "
+                f"corner fit needs {margin * 1e3:.1f} mm ({TEMPLATE_QUIET_MODULES} cells)"
+            )
+        return board
+
+
+def _number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _integer(d: dict, key: str, source: str, least: int, default: int | None = None) -> int:
+    value = d.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool) or value < least:
+        raise BoardDefinitionError(f"{source}: field '{key}' should be an integer >= {least}, got {value!r}")
+    return value
+
+
+def _positive(d: dict, key: str, source: str) -> float:
+    value = d.get(key)
+    if not _number(value) or not value > 0:
+        raise BoardDefinitionError(f"{source}: field '{key}' should be a number > 0, got {value!r}")
+    return float(value)
+
+
+class AprilGridDetector:
+    """Finds an AprilGrid's tags in images: OpenCV's ArucoDetector for the IDs and rough corners,
+    then the tag's cells aligned to the image for sub-pixel corners and their covariance."""
+
+    def __init__(self, board: AprilGridBoard, settings: DetectorSettings | None = None) -> None:
+        self.board = board
+        self.settings = settings or DetectorSettings()
+        parameters = cv2.aruco.DetectorParameters()
+        parameters.markerBorderBits = board.border_bits
+        self._aruco = cv2.aruco.ArucoDetector(_dictionary(), parameters)
+        self._ids = set(board.marker_ids)
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """The board's tags in an (H, W, 3) RGB or (H, W) grey uint8 image."""
+        try:
+            gray = to_gray(image)
+        except ValueError as exc:
+            return Detections(problem=str(exc))
+        problem = image_problem(gray)
+        if problem is not None:
+            return Detections(problem=problem)
+        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()), passes_run=["aruco"])
+        corners, ids, _ = self._aruco.detectMarkers(gray)
+        found = (
+            []
+            if ids is None
+            else [
+                (int(i), c.reshape(4, 2).astype(np.float64))
+                for i, c in zip(ids.ravel(), corners, strict=True)
+            ]
+        )
+        counts: dict[int, int] = {}
+        for tag_id, _ in found:
+            counts[tag_id] = counts.get(tag_id, 0) + 1
+        for tag_id, corners_tl in found:
+            if tag_id not in self._ids:
+                result.rejected.append(
+                    Rejection(f"tag {tag_id} is not on board {self.board.name!r}", tag_id, None, corners_tl)
+                )
+            elif counts[tag_id] > 1:
+                result.rejected.append(
+                    Rejection(
+                        f"tag {tag_id} appears {counts[tag_id]} times: ambiguous, all dropped",
+                        tag_id,
+                        None,
+                        corners_tl,
+                    )
+                )
+            else:
+                self._refine(gray, tag_id, corners_tl, result)
+        result.markers.sort(key=lambda m: m.marker_id)
+        return result
+
+    def _refine(self, gray: np.ndarray, tag_id: int, corners_tl: np.ndarray, result: Detections) -> None:
+        """Fit the tag's cells to the image (corners_tl: ArucoDetector's order) and add the marker
+        in Kalibr's corner order, or a rejection saying why the fit failed."""
+        s = self.settings
+        try:
+            fit = fit_marker(
+                gray,
+                corners_tl,
+                tag_cells(tag_id, self.board.border_bits),
+                corner_floor_px=max(s.corner_floor_px, TAG_CORNER_FLOOR_PX),
+                center_floor_px=max(s.center_floor_px, TAG_CENTER_FLOOR_PX),
+                min_correlation=s.min_correlation,
+                max_template_px_per_module=MAX_TEMPLATE_PX_PER_CELL,
+            )
+        except MarkerFitError as exc:
+            result.rejected.append(Rejection(f"tag {tag_id}: {exc}", tag_id, None, corners_tl))
+            return
+        if fit.module_agreement < s.min_module_agreement:
+            result.rejected.append(
+                Rejection(
+                    f"tag {tag_id}: only {fit.module_agreement:.0%} of its cells match the tag",
+                    tag_id,
+                    None,
+                    fit.corners_px,
+                )
+            )
+            return
+        order = _KALIBR_FROM_ARUCO
+        coordinates = np.stack([2 * order, 2 * order + 1], axis=1).ravel()
+        result.markers.append(
+            MarkerDetection(
+                marker_id=tag_id,
+                corners_px=fit.corners_px[order],
+                corners_cov=fit.corners_cov[np.ix_(coordinates, coordinates)],
+                center_px=fit.center_px,
+                center_cov=fit.center_cov,
+                quality=fit.correlation,
+                module_agreement=fit.module_agreement,
+                noise_sigma=fit.noise_sigma,
+                found_by="aruco",
+                raw_corners_px=corners_tl[order],
+            )
+        )

@@ -1,0 +1,168 @@
+"""The AprilGrid kind: Kalibr's layout and IDs, the board frame, detection under any rotation and in
+partial views, honest corner covariances, and board files with bad fields named."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.targets.aprilgrid import TAG_CORNER_FLOOR_PX, AprilGridBoard, AprilGridDetector, tag_cells
+from estimator.targets.kinds import board_from_dict, detector_for, find_board, load_board
+from estimator.targets.target import BoardDefinitionError
+
+PX_PER_M = 2000.0  # 8.4 px per tag cell on aprilgrid_6x3
+
+
+@pytest.fixture(scope="module")
+def board() -> AprilGridBoard:
+    loaded = find_board("aprilgrid_6x3")
+    assert isinstance(loaded, AprilGridBoard)
+    return loaded
+
+
+def sheet_px(board: AprilGridBoard, points_board: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels of board-frame points (N, 3) in board.image(PX_PER_M): the sheet spans the image."""
+    w, h = board.size_m
+    return np.column_stack(
+        [(points_board[:, 0] + w / 2) * PX_PER_M - 0.5, (h / 2 - points_board[:, 1]) * PX_PER_M - 0.5]
+    )
+
+
+def warped_view(board: AprilGridBoard, H: np.ndarray, shape=(480, 640), ss: int = 4) -> np.ndarray:
+    """The sheet seen through homography H (sheet pixels -> image pixels), grey uint8: warped at ss
+    times the resolution and area-averaged down, so edges are not aliased."""
+    sheet = board.image(ss * PX_PER_M)
+    up = np.array([[ss, 0.0, (ss - 1) / 2], [0.0, ss, (ss - 1) / 2], [0.0, 0.0, 1.0]])  # pixel centres
+    fine = cv2.warpPerspective(
+        sheet,
+        up @ H @ np.linalg.inv(up),
+        (ss * shape[1], ss * shape[0]),
+        flags=cv2.INTER_LINEAR,
+        borderValue=128,
+    )
+    return cv2.resize(fine, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+
+
+def tilted_homography(board: AprilGridBoard, scale: float = 0.75) -> np.ndarray:
+    """A perspective view of the whole sheet, centred in a 640x480 image."""
+    h, w = board.image(PX_PER_M).shape
+    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
+    dst = np.float32([[60, 110], [600, 70], [585, 400], [40, 350]])
+    centre = dst.mean(axis=0)
+    return cv2.getPerspectiveTransform(src, (centre + scale / 0.75 * (dst - centre)).astype(np.float32))
+
+
+def apply(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    return cv2.perspectiveTransform(uv.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+
+
+def test_board_file_reads_back_and_lays_out_kalibrs_grid(board: AprilGridBoard, tmp_path: Path) -> None:
+    assert board.kind == "aprilgrid" and board.points_per_marker == 4
+    assert board_from_dict(board.to_dict(), "copy") == board
+    assert board.marker_ids == list(range(18))
+    # Kalibr: tag 0 at the bottom-left, IDs along x, then up; corners BL, BR, TR, TL.
+    c0, c5, c6 = (board.marker_center(i) for i in (0, 5, 6))
+    assert c0[0] < 0 and c0[1] < 0 and c5[0] > 0 and np.isclose(c5[1], c0[1]) and c6[1] > c0[1]
+    corners = board.marker_corners(0)[:, :2]
+    np.testing.assert_allclose(np.sign(corners - c0[:2]), [[-1, -1], [1, -1], [1, 1], [-1, 1]])
+    pitch = board.tag_size_m * (1 + board.tag_spacing)
+    np.testing.assert_allclose(c5[0] - c0[0], 5 * pitch)
+    path = tmp_path / "grid.json"
+    path.write_text(json.dumps(board.to_dict()))
+    assert load_board(path) == board
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"tag_cols": 0}, "field 'tag_cols' should be an integer >= 1, got 0"),
+        ({"tag_rows": 2.5}, "field 'tag_rows' should be an integer >= 1"),
+        ({"tag_size_m": -0.04}, "field 'tag_size_m' should be a number > 0"),
+        ({"tag_spacing": "wide"}, "field 'tag_spacing' should be a number > 0"),
+        ({"first_id": 580}, "tag36h11 has IDs 0-586"),
+        ({"tag_cols": 9}, "does not fit on the sheet"),
+        ({"tag_spacing": 0.1}, "the corner fit needs"),
+        ({"size_m": [0.4]}, "field 'size_m' should be [width, height] > 0"),
+    ],
+)
+def test_bad_fields_are_named(board: AprilGridBoard, change: dict, message: str) -> None:
+    with pytest.raises(BoardDefinitionError, match="grid.json") as error:
+        board_from_dict(board.to_dict() | change, "grid.json")
+    assert message in str(error.value)
+
+
+def test_the_sheet_draws_each_tag_where_the_board_says(board: AprilGridBoard) -> None:
+    """Each tag's cells in board.image() are OpenCV's tag of that ID, upright (y up = image top)."""
+    sheet = board.image(PX_PER_M, supersample=1)
+    cells = 6 + 2 * board.border_bits
+    for tag_id in (0, 7, 17):
+        top_left = sheet_px(board, board.marker_corners(tag_id)[3:4])[0] + 0.5
+        cell_px = board.feature_m * PX_PER_M
+        rows = np.round(top_left[1] + (np.arange(cells) + 0.5) * cell_px).astype(int)
+        cols = np.round(top_left[0] + (np.arange(cells) + 0.5) * cell_px).astype(int)
+        np.testing.assert_array_equal(sheet[np.ix_(rows, cols)] < 128, tag_cells(tag_id, board.border_bits))
+
+
+@pytest.mark.parametrize("quarter_turns", [0, 1, 2, 3])
+def test_ids_and_corners_under_any_rotation(board: AprilGridBoard, quarter_turns: int) -> None:
+    """Corners land where the board frame puts them, whichever way the sheet is turned in the image
+    (a flipped frame or a wrong corner order would miss by tens of pixels)."""
+    turn = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 639.0], [0.0, 0.0, 1.0]])  # 90 deg in a 640x640 frame
+    H = np.linalg.matrix_power(turn, quarter_turns) @ tilted_homography(board, 0.7)
+    image = warped_view(board, H, shape=(640, 640))
+    detections = detector_for(board).detect(image)
+    assert [m.marker_id for m in detections.markers] == board.marker_ids
+    for marker in detections.markers:
+        expected = apply(H, sheet_px(board, board.marker_corners(marker.marker_id)))
+        np.testing.assert_allclose(marker.corners_px, expected, atol=0.1)
+        assert marker.corners_cov.shape == (8, 8)
+
+
+def test_a_partial_view_gives_the_tags_inside_it(board: AprilGridBoard) -> None:
+    H = np.diag([1.6, 1.6, 1.0]) @ tilted_homography(board, 0.75)  # the sheet overflows the image
+    image = warped_view(board, H)
+    detections = detector_for(board).detect(image)
+    found = {m.marker_id for m in detections.markers}
+    assert 3 <= len(found) < len(board.marker_ids)
+    for marker in detections.markers:
+        expected = apply(H, sheet_px(board, board.marker_corners(marker.marker_id)))
+        assert np.all((expected >= 0) & (expected <= [639, 479]))
+        np.testing.assert_allclose(marker.corners_px, expected, atol=0.1)
+
+
+def test_tags_of_another_grid_are_rejected_by_id(board: AprilGridBoard) -> None:
+    other = board_from_dict(board.to_dict() | {"first_id": 100}, "other")
+    image = warped_view(board, tilted_homography(board))
+    detections = AprilGridDetector(other).detect(image)
+    assert detections.markers == []
+    reasons = sorted(r.reason for r in detections.rejected)
+    assert reasons == sorted(f"tag {i} is not on board 'aprilgrid_6x3'" for i in board.marker_ids)
+
+
+def test_corner_covariance_matches_the_scatter_of_noisy_fits(board: AprilGridBoard) -> None:
+    """Over repeated noise draws, the corners scatter as their covariance says, less its floor (the
+    error noise does not explain, the same in every draw)."""
+    H = tilted_homography(board)
+    # Ink at 30 and paper at 200 grey levels as a camera sees them (noise clipped at 0 or 255 would be
+    # smaller in the flat parts, where its sigma is measured, than at the edges), and a lens's blur.
+    clean = cv2.GaussianBlur(30 + 170 / 255 * warped_view(board, H).astype(np.float64), (0, 0), 0.7)
+    detector = AprilGridDetector(board)
+    rng = np.random.default_rng(4)
+    sigma = 6.0
+    fits: dict[int, list] = {}
+    for _ in range(25):
+        noisy = np.clip(np.round(clean + sigma * rng.standard_normal(clean.shape)), 0, 255).astype(np.uint8)
+        for m in detector.detect(noisy).markers:
+            fits.setdefault(m.marker_id, []).append((m.corners_px.ravel(), m.corners_cov))
+    ratios = []
+    for per_tag in fits.values():
+        corners = np.array([c for c, _ in per_tag])
+        scatter = np.cov(corners.T)
+        reported = np.mean([c for _, c in per_tag], axis=0) - TAG_CORNER_FLOOR_PX**2 * np.eye(8)
+        ratios.append(np.trace(scatter) / np.trace(reported))
+    assert len(fits) == len(board.marker_ids)
+    assert 0.6 <= float(np.median(ratios)) <= 1.6  # the QR fit's bounds (test_detect)
