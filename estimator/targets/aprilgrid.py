@@ -4,12 +4,13 @@ Geometry (Kalibr's target yaml, in metres): ``tag_cols`` x ``tag_rows`` tags of 
 ``tag_size_m`` (edge to edge of the black border), ``tag_spacing`` times the side apart, each
 tag drawn with ``border_bits`` black cells around its 6 x 6 code (Kalibr prints 2), centred on
 the sheet. Tag IDs run as Kalibr's: ``first_id`` at the bottom-left, along x then up the rows.
-Kalibr also prints small black squares between the tags' corners; hec's sheet leaves them out
-(OpenCV's tag finder merges a tag with a square touching its corner) and a Kalibr print's are
-ignored where they do not touch the template's quiet zone.
+Kalibr also prints small black squares between the tags' corners; hec's sheet leaves them out,
+and a print with them is not supported yet: they touch each tag's corner, where OpenCV's tag finder
+and the corner fit's template expect white paper (not measured).
 
-Corner order of every tag (Kalibr's): bottom-left, bottom-right, top-right, top-left of the
-upright tag, in hec's board frame (origin at the sheet centre, x right, y up, z out of the face).
+Corner order of every tag: bottom-left, bottom-right, top-right, top-left of the upright tag
+(counter-clockwise from the corner nearest Kalibr's origin), in hec's board frame (origin at the
+sheet centre, x right, y up, z out of the face).
 Kalibr's target frame has its origin at the bottom-left corner of tag ``first_id`` with the same
 axes, so p_kalibr = p_hec + (W / 2, H / 2, 0) with W, H the grid's outer width and height.
 
@@ -43,9 +44,9 @@ MAX_TEMPLATE_PX_PER_CELL = 8
 TAG_CORNER_FLOOR_PX = 0.027
 TAG_CENTER_FLOOR_PX = 0.0058
 # ArucoDetector's corners (top-left, top-right, bottom-right, bottom-left of the tag image) in
-# Kalibr's order (bottom-left, bottom-right, top-right, top-left).
-_KALIBR_FROM_ARUCO = np.array([3, 2, 1, 0])
-# Tag corner offsets in Kalibr's order, in units of the tag side (board frame, y up).
+# the board's order (bottom-left, bottom-right, top-right, top-left).
+_BOARD_FROM_ARUCO = np.array([3, 2, 1, 0])
+# Tag corner offsets in the board's order, in units of the tag side (board frame, y up).
 _CORNER_OFFSETS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
 
 
@@ -122,7 +123,7 @@ class AprilGridBoard:
         )
 
     def marker_corners(self, marker_id: int) -> np.ndarray:
-        """(4, 3) the tag's corners in the board frame, Kalibr's order (module doc)."""
+        """(4, 3) the tag's corners in the board frame, in the module doc's order."""
         center = self.marker_center(marker_id)
         xy = center[:2] + _CORNER_OFFSETS * self.tag_size_m
         return np.column_stack([xy, np.zeros(4)])
@@ -274,7 +275,7 @@ class AprilGridDetector:
 
     def _refine(self, gray: np.ndarray, tag_id: int, corners_tl: np.ndarray, result: Detections) -> None:
         """Fit the tag's cells to the image (corners_tl: ArucoDetector's order) and add the marker
-        in Kalibr's corner order, or a rejection saying why the fit failed."""
+        in the board's corner order, or a rejection saying why the fit failed."""
         s = self.settings
         try:
             fit = fit_marker(
@@ -299,7 +300,7 @@ class AprilGridDetector:
                 )
             )
             return
-        order = _KALIBR_FROM_ARUCO
+        order = _BOARD_FROM_ARUCO
         coordinates = np.stack([2 * order, 2 * order + 1], axis=1).ravel()
         result.markers.append(
             MarkerDetection(
