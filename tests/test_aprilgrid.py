@@ -6,15 +6,22 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from estimator.targets.aprilgrid import TAG_CORNER_FLOOR_PX, AprilGridBoard, AprilGridDetector, tag_cells
 from estimator.targets.kinds import board_from_dict, detector_for, find_board, load_board
 from estimator.targets.target import BoardDefinitionError
-
-PX_PER_M = 2000.0  # 8.4 px per tag cell on aprilgrid_6x3
+from tests.sheet_views import (
+    PX_PER_M,
+    apply,
+    as_camera_sees,
+    noisy_copies,
+    quarter_turned,
+    sheet_px,
+    tilted_homography,
+    warped_view,
+)
 
 
 @pytest.fixture(scope="module")
@@ -22,42 +29,6 @@ def board() -> AprilGridBoard:
     loaded = find_board("aprilgrid_6x3")
     assert isinstance(loaded, AprilGridBoard)
     return loaded
-
-
-def sheet_px(board: AprilGridBoard, points_board: np.ndarray) -> np.ndarray:
-    """(N, 2) pixels of board-frame points (N, 3) in board.image(PX_PER_M): the sheet spans the image."""
-    w, h = board.size_m
-    return np.column_stack(
-        [(points_board[:, 0] + w / 2) * PX_PER_M - 0.5, (h / 2 - points_board[:, 1]) * PX_PER_M - 0.5]
-    )
-
-
-def warped_view(board: AprilGridBoard, H: np.ndarray, shape=(480, 640), ss: int = 4) -> np.ndarray:
-    """The sheet seen through homography H (sheet pixels -> image pixels), grey uint8: warped at ss
-    times the resolution and area-averaged down, so edges are not aliased."""
-    sheet = board.image(ss * PX_PER_M)
-    up = np.array([[ss, 0.0, (ss - 1) / 2], [0.0, ss, (ss - 1) / 2], [0.0, 0.0, 1.0]])  # pixel centres
-    fine = cv2.warpPerspective(
-        sheet,
-        up @ H @ np.linalg.inv(up),
-        (ss * shape[1], ss * shape[0]),
-        flags=cv2.INTER_LINEAR,
-        borderValue=128,
-    )
-    return cv2.resize(fine, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
-
-
-def tilted_homography(board: AprilGridBoard, scale: float = 0.75) -> np.ndarray:
-    """A perspective view of the whole sheet, centred in a 640x480 image."""
-    h, w = board.image(PX_PER_M).shape
-    src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
-    dst = np.float32([[60, 110], [600, 70], [585, 400], [40, 350]])
-    centre = dst.mean(axis=0)
-    return cv2.getPerspectiveTransform(src, (centre + scale / 0.75 * (dst - centre)).astype(np.float32))
-
-
-def apply(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    return cv2.perspectiveTransform(uv.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
 
 
 def test_board_file_reads_back_and_lays_out_kalibrs_grid(board: AprilGridBoard, tmp_path: Path) -> None:
@@ -111,8 +82,7 @@ def test_the_sheet_draws_each_tag_where_the_board_says(board: AprilGridBoard) ->
 def test_ids_and_corners_under_any_rotation(board: AprilGridBoard, quarter_turns: int) -> None:
     """Corners land where the board frame puts them, whichever way the sheet is turned in the image
     (a flipped frame or a wrong corner order would miss by tens of pixels)."""
-    turn = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 639.0], [0.0, 0.0, 1.0]])  # 90 deg in a 640x640 frame
-    H = np.linalg.matrix_power(turn, quarter_turns) @ tilted_homography(board, 0.7)
+    H = quarter_turned(tilted_homography(board, 0.7), quarter_turns)
     image = warped_view(board, H, shape=(640, 640))
     detections = detector_for(board).detect(image)
     assert [m.marker_id for m in detections.markers] == board.marker_ids
@@ -147,15 +117,11 @@ def test_corner_covariance_matches_the_scatter_of_noisy_fits(board: AprilGridBoa
     """Over repeated noise draws, the corners scatter as their covariance says, less its floor (the
     error noise does not explain, the same in every draw)."""
     H = tilted_homography(board)
-    # Ink at 30 and paper at 200 grey levels as a camera sees them (noise clipped at 0 or 255 would be
-    # smaller in the flat parts, where its sigma is measured, than at the edges), and a lens's blur.
-    clean = cv2.GaussianBlur(30 + 170 / 255 * warped_view(board, H).astype(np.float64), (0, 0), 0.7)
+    clean = as_camera_sees(warped_view(board, H))
     detector = AprilGridDetector(board)
     rng = np.random.default_rng(4)
-    sigma = 6.0
     fits: dict[int, list] = {}
-    for _ in range(25):
-        noisy = np.clip(np.round(clean + sigma * rng.standard_normal(clean.shape)), 0, 255).astype(np.uint8)
+    for noisy in noisy_copies(clean, 6.0, 25, rng):
         for m in detector.detect(noisy).markers:
             fits.setdefault(m.marker_id, []).append((m.corners_px.ravel(), m.corners_cov))
     ratios = []

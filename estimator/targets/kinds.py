@@ -15,6 +15,8 @@ from estimator.io.jsonfile import read_json_object
 from estimator.io.models import models_dir
 from estimator.targets.aprilgrid import AprilGridBoard, AprilGridDetector
 from estimator.targets.board import BoardDefinition
+from estimator.targets.charuco import CharucoBoard, CharucoDetector
+from estimator.targets.chessboard import ChessboardBoard, ChessboardDetector
 from estimator.targets.qr import DetectorSettings, QRDetector
 from estimator.targets.target import BoardDefinitionError, Target, TargetDetector
 
@@ -24,6 +26,8 @@ KINDS: dict[
 ] = {
     "qr": (BoardDefinition.from_dict, QRDetector),
     "aprilgrid": (AprilGridBoard.from_dict, AprilGridDetector),
+    "chessboard": (ChessboardBoard.from_dict, ChessboardDetector),
+    "charuco": (CharucoBoard.from_dict, CharucoDetector),
 }
 
 

@@ -26,7 +26,7 @@ side, so the corners are (0, 0), (1, 0), (1, 1), (0, 1). The homography maps
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -226,26 +226,73 @@ def fit_marker(
     corners' and the centre's covariance. The template is drawn at the image's pixels per module,
     clipped to [2, max_template_px_per_module]: a template much coarser than the image biases the
     corners (AprilTag cells of 8-11 px fitted with 3 px ones shrank the tag by 0.04 px; QR modules
-    of 3-5 px gain nothing from more). Raises MarkerFitError when the marker with its quiet zone leaves the
-    image, the fit diverges, or its correlation stays below min_correlation.
+    of 3-5 px gain nothing from more). Raises MarkerFitError when the marker with its quiet zone
+    leaves the image, the fit diverges, or its correlation stays below min_correlation.
     """
     n = modules.shape[0]
     corners_px = np.asarray(corners_px, dtype=np.float64)
-    side_px = float(np.linalg.norm(corners_px - np.roll(corners_px, 1, axis=0), axis=1).mean())
-    px_per_module = int(np.clip(round(side_px / n), 2, max_template_px_per_module))
-    template = _template(modules.tobytes(), n, px_per_module)
+    px_per_module = int(np.clip(round(_side_px(corners_px) / n), 2, max_template_px_per_module))
     q = TEMPLATE_QUIET_MODULES
+    fit = fit_template(
+        gray,
+        corners_px,
+        _template(modules.tobytes(), n, px_per_module),
+        TemplateFrame(n * px_per_module, q * px_per_module),
+        (q + 1) / n,
+        corner_floor_px,
+        center_floor_px,
+        max_iterations,
+        min_correlation,
+    )
+    return replace(fit, module_agreement=module_agreement(gray, fit.corners_px, modules))
+
+
+def _side_px(corners_px: np.ndarray) -> float:
+    """Mean side length (pixels) of a (4, 2) quad."""
+    return float(np.linalg.norm(corners_px - np.roll(corners_px, 1, axis=0), axis=1).mean())
+
+
+@dataclass(frozen=True)
+class TemplateFrame:
+    """Where the symbol (the unit square of symbol coordinates) lies in a template image: it spans
+    template pixels [offset_px - 0.5, offset_px + side_px - 0.5] along both axes (pixel centres
+    at integers, so the symbol's edges fall on pixel edges)."""
+
+    side_px: int
+    offset_px: int
+
+    def ab_to_template(self) -> np.ndarray:
+        """(3, 3) symbol coordinates (a, b, 1) -> template pixels."""
+        s, o = float(self.side_px), self.offset_px - 0.5
+        return np.array([[s, 0.0, o], [0.0, s, o], [0.0, 0.0, 1.0]])
+
+
+def fit_template(
+    gray: np.ndarray,
+    corners_px: np.ndarray,
+    template: np.ndarray,
+    frame: TemplateFrame,
+    region_fraction: float,
+    corner_floor_px: float,
+    center_floor_px: float,
+    max_iterations: int = 30,
+    min_correlation: float = 0.8,
+) -> MarkerFit:
+    """Align a known template to the image by a homography (ECC) and give the symbol's corners.
+
+    corners_px: (4, 2) rough image corners of the symbol (symbol coordinates (0, 0), (1, 0),
+    (1, 1), (0, 1)). template: (S, S) float32 grey image of the symbol and what surrounds it, placed
+    by ``frame``. region_fraction: how far around the symbol, as a fraction of its side, the image
+    is cut for the fit (the template's surround and a margin). Floors as fit_marker's. Returns the
+    MarkerFit with module_agreement 1 (the caller measures it when it has modules); raises
+    MarkerFitError as fit_marker.
+    """
+    corners_px = np.asarray(corners_px, dtype=np.float64)
+    side_px = _side_px(corners_px)
     if not fits_in_image(corners_px, 0.0, gray.shape):
         raise MarkerFitError("the code itself (not only its quiet zone) is partly outside the image")
-    # Symbol coordinates -> template pixels: the symbol spans [q*s - 0.5, (q+n)*s - 0.5].
-    S_ab_to_tpl = np.array(
-        [
-            [n * px_per_module, 0.0, q * px_per_module - 0.5],
-            [0.0, n * px_per_module, q * px_per_module - 0.5],
-            [0, 0, 1],
-        ]
-    )
-    roi_origin, roi = _region(gray, corners_px, quiet_fraction=(q + 1) / n)
+    S_ab_to_tpl = frame.ab_to_template()
+    roi_origin, roi = _region(gray, corners_px, quiet_fraction=region_fraction)
     shift = np.array([[1.0, 0.0, -roi_origin[0]], [0.0, 1.0, -roi_origin[1]], [0.0, 0.0, 1.0]])
     H_roi_tpl = shift @ homography_from_corners(corners_px) @ np.linalg.inv(S_ab_to_tpl)
     H_roi_tpl /= H_roi_tpl[2, 2]
@@ -277,7 +324,7 @@ def fit_marker(
         center_px=center_from_corners(refined),
         center_cov=J_center @ noise_cov @ J_center.T + center_floor_px**2 * np.eye(2),
         correlation=float(correlation),
-        module_agreement=module_agreement(gray, refined, modules),
+        module_agreement=1.0,
         noise_sigma=sigma,
     )
 

@@ -23,19 +23,24 @@ class CellBlock:
 
 
 def draw_sheet(
-    size_m: tuple[float, float], blocks: list[CellBlock], px_per_m: float, supersample: int = 4
+    size_m: tuple[float, float],
+    blocks: list[CellBlock],
+    px_per_m: float,
+    supersample: int = 4,
+    center_m: tuple[float, float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """The sheet as an (H, W) uint8 image, white paper, black cells.
+    """A size_m rectangle of the sheet centred at center_m (board frame; the whole sheet by default)
+    as an (H, W) uint8 image, white paper, black cells.
 
-    Row 0 is the sheet's top edge (largest y), column 0 its left edge (board frame: origin at the
-    sheet centre). The sheet spans exactly the image: a pixel is size_m[0] / W wide. Edges that fall
-    inside a pixel are area-averaged over supersample^2 samples.
+    Row 0 is the rectangle's top edge (largest y), column 0 its left edge. It spans exactly the
+    image: a pixel is size_m[0] / W wide. Edges that fall inside a pixel are area-averaged over
+    supersample^2 samples.
     """
     w_m, h_m = size_m
     W, H = round(w_m * px_per_m), round(h_m * px_per_m)
     ss = supersample
-    x = -w_m / 2 + (np.arange(W * ss) + 0.5) * (w_m / (W * ss))
-    y = h_m / 2 - (np.arange(H * ss) + 0.5) * (h_m / (H * ss))
+    x = center_m[0] - w_m / 2 + (np.arange(W * ss) + 0.5) * (w_m / (W * ss))
+    y = center_m[1] + h_m / 2 - (np.arange(H * ss) + 0.5) * (h_m / (H * ss))
     dark = np.zeros((H * ss, W * ss), dtype=bool)
     for block in blocks:
         n_rows, n_cols = block.dark.shape

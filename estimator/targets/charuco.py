@@ -1,0 +1,192 @@
+"""The ChArUco board: a chessboard whose white squares hold ArUco markers, as OpenCV draws it.
+
+Board file fields: ``squares_x``, ``squares_y``, ``square_m``, ``marker_m`` (the ArUco marker's
+side, black border included), ``dictionary`` (an OpenCV predefined dictionary name, for example
+"DICT_5X5_100"), the sheet's ``size_m``. The pattern is OpenCV's (cv2.aruco.CharucoBoard, not
+the legacy one): the top-left square black, marker IDs 0, 1, ... in the white squares row-major
+from the top-left. Grid, corner IDs (OpenCV's ChArUco corner IDs) and frames as
+estimator.targets.checker says.
+
+Detection: OpenCV's CharucoDetector finds the markers and, from them, the corners (partial views
+are fine: a corner counts once its neighbouring markers are found); each corner is then refined
+and given its covariance by the template fit of its 2 x 2 squares, markers included
+(checker.CornerFitter).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from estimator.targets import checker
+from estimator.targets.detection import Detections, image_problem, to_gray
+from estimator.targets.qr import DetectorSettings
+from estimator.targets.sheet import CellBlock, draw_sheet
+from estimator.targets.target import BoardDefinitionError
+
+# Error per coordinate image noise does not explain at a ChArUco corner, pixels: the RMS on
+# noise-free renders of the default trajectory (charuco_10x5: 17 views, 606 corners).
+CORNER_FLOOR_PX = 0.020
+
+
+@functools.lru_cache(maxsize=8)
+def _dictionary(name: str) -> cv2.aruco.Dictionary:
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+@dataclass(frozen=True)
+class CharucoBoard:
+    """A ChArUco board on a sheet (module doc); lengths in metres."""
+
+    name: str
+    size_m: tuple[float, float]
+    squares_x: int
+    squares_y: int
+    square_m: float
+    marker_m: float
+    dictionary: str
+
+    kind = "charuco"
+    points_per_marker = 1
+    markers_placed_one_by_one = False
+    corners_homography_fitted = False
+
+    @property
+    def marker_ids(self) -> list[int]:
+        return checker.corner_ids(self.squares_x, self.squares_y)
+
+    @property
+    def feature_m(self) -> float:
+        """One cell of an ArUco marker."""
+        return self.marker_m / (self.opencv_board().getDictionary().markerSize + 2)
+
+    @property
+    def visible_margin_m(self) -> float:
+        """The corner's 2 x 2 squares (its fit's block)."""
+        return self.square_m
+
+    def marker_corners(self, marker_id: int) -> np.ndarray:
+        """(1, 3) the corner in the board frame."""
+        return self.marker_center(marker_id)[None, :]
+
+    def marker_center(self, marker_id: int) -> np.ndarray:
+        x, y = checker.corner_xy(self.squares_x, self.squares_y, self.square_m, marker_id)
+        return np.array([x, y, 0.0])
+
+    def all_corners(self) -> np.ndarray:
+        """(M, 1, 3) every corner, ordered by ID."""
+        return np.stack([self.marker_corners(i) for i in self.marker_ids])
+
+    def pinned(self) -> CharucoBoard:
+        return self
+
+    def opencv_board(self) -> cv2.aruco.CharucoBoard:
+        """OpenCV's board of this geometry (its frame: module doc of checker)."""
+        return _opencv_board(self.squares_x, self.squares_y, self.square_m, self.marker_m, self.dictionary)
+
+    def cell_blocks(self) -> tuple[CellBlock, ...]:
+        """What is printed: the black squares and every ArUco marker's cells."""
+        width, height = checker.grid_size_m(self.squares_x, self.squares_y, self.square_m)
+        board = self.opencv_board()
+        dictionary = board.getDictionary()
+        cells = dictionary.markerSize + 2
+        blocks = [checker.squares_block(self.squares_x, self.squares_y, self.square_m)]
+        for marker_id, corners in zip(board.getIds().ravel(), board.getObjPoints(), strict=True):
+            left_cv, top_cv = np.asarray(corners)[0, :2]  # OpenCV frame: y down from the grid's top-left
+            dark = cv2.aruco.generateImageMarker(dictionary, int(marker_id), cells, borderBits=1) < 128
+            blocks.append(
+                CellBlock(dark, float(left_cv - width / 2), float(height / 2 - top_cv), self.marker_m / cells)
+            )
+        return tuple(blocks)
+
+    def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
+        """The sheet as an (H, W) uint8 image (sheet.draw_sheet); the grid as OpenCV's generateImage
+        draws it."""
+        return draw_sheet(self.size_m, list(self.cell_blocks()), px_per_m, supersample)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "hec-board",
+            "version": 1,
+            "kind": self.kind,
+            "name": self.name,
+            "size_m": list(self.size_m),
+            "squares_x": self.squares_x,
+            "squares_y": self.squares_y,
+            "square_m": self.square_m,
+            "marker_m": self.marker_m,
+            "dictionary": self.dictionary,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "board definition") -> CharucoBoard:
+        """Validate and build; errors name ``source`` and the field."""
+        name, size, squares_x, squares_y, square_m = checker.check_grid(d, source)
+        marker_m = checker.positive_field(d, "marker_m", source)
+        if marker_m >= square_m:
+            raise BoardDefinitionError(
+                f"{source}: field 'marker_m' {marker_m} should be smaller than 'square_m' {square_m}"
+            )
+        dictionary = d.get("dictionary")
+        if not (
+            isinstance(dictionary, str) and dictionary.startswith("DICT_") and hasattr(cv2.aruco, dictionary)
+        ):
+            raise BoardDefinitionError(
+                f"{source}: field 'dictionary' should name an OpenCV ArUco dictionary such as "
+                f"'DICT_5X5_100', got {dictionary!r}"
+            )
+        needed = squares_x * squares_y // 2
+        available = _dictionary(dictionary).bytesList.shape[0]
+        if needed > available:
+            raise BoardDefinitionError(
+                f"{source}: a {squares_x}x{squares_y} board needs {needed} markers; 'dictionary' "
+                f"{dictionary} has {available}"
+            )
+        return cls(name, size, squares_x, squares_y, square_m, marker_m, dictionary)
+
+
+@functools.lru_cache(maxsize=8)
+def _opencv_board(
+    squares_x: int, squares_y: int, square_m: float, marker_m: float, dictionary: str
+) -> cv2.aruco.CharucoBoard:
+    return cv2.aruco.CharucoBoard((squares_x, squares_y), square_m, marker_m, _dictionary(dictionary))
+
+
+class CharucoDetector:
+    """Finds a ChArUco board's corners (module doc)."""
+
+    def __init__(self, board: CharucoBoard, settings: DetectorSettings | None = None) -> None:
+        self.board = board
+        self.settings = settings or DetectorSettings()
+        self._detector = cv2.aruco.CharucoDetector(board.opencv_board())
+        self._fitter = checker.CornerFitter(
+            board.cell_blocks(),
+            board.square_m,
+            lambda i: board.marker_center(i)[:2],
+            max(self.settings.center_floor_px, CORNER_FLOOR_PX),
+            self.settings.min_correlation,
+        )
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """The board's corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
+        try:
+            gray = to_gray(image)
+        except ValueError as exc:
+            return Detections(problem=str(exc))
+        problem = image_problem(gray)
+        if problem is not None:
+            return Detections(problem=problem)
+        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()), passes_run=["charuco"])
+        corners, ids, _, _ = self._detector.detectBoard(gray)
+        if ids is None or len(ids) == 0:
+            result.problem = f"no corner of ChArUco board {self.board.name!r} found"
+            return result
+        found = {
+            int(i): c.astype(np.float64) for i, c in zip(ids.ravel(), corners.reshape(-1, 2), strict=True)
+        }
+        result.markers, result.rejected = self._fitter.fit(gray, found, "charuco")
+        result.markers.sort(key=lambda m: m.marker_id)
+        return result

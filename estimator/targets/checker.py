@@ -1,0 +1,189 @@
+"""What chessboards and ChArUco boards share: the grid of squares, its inner corners, and each
+corner's sub-pixel fit with its covariance.
+
+Grid: ``squares_x`` x ``squares_y`` squares of side ``square_m``, centred on the sheet, the
+top-left square black (as OpenCV's ChArUco boards). Inner corner IDs run as OpenCV's ChArUco
+corner IDs: row-major from the top-left, ID = r (squares_x - 1) + c, c counted to the right and r
+downwards. Each corner is a one-point marker; in hec's board frame (origin at the sheet centre,
+x right, y up) corner (r, c) sits at x = -W/2 + (c + 1) square_m, y = H/2 - (r + 1) square_m, W
+and H the grid's width and height. OpenCV's board frame starts at the grid's top-left corner with
+y down and z into the board: p_opencv = (x + W/2, H/2 - y, -z).
+
+Sub-pixel corners: the 2 x 2 squares around a corner, with one square of the board around them,
+are drawn from the board's own definition as a template and aligned to the image by a homography
+(qr_fit.fit_template, the QR codes' ECC fit); the corner is the block's centre, its covariance
+the fit's centre covariance plus a floor measured on noise-free renders.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+from estimator.targets.detection import MarkerDetection, Rejection
+from estimator.targets.qr_fit import MarkerFitError, TemplateFrame, fit_template
+from estimator.targets.sheet import CellBlock, draw_sheet
+from estimator.targets.target import BoardDefinitionError
+
+# Template pixels per square: the image's, clipped to this range (a template much coarser than the
+# image biases the fit, see qr_fit.fit_marker).
+MIN_TEMPLATE_PX_PER_SQUARE = 6
+MAX_TEMPLATE_PX_PER_SQUARE = 24
+# The image cut for a corner's fit reaches this far around its 2 x 2 block, in block sides (the
+# template's one-square surround is 0.5).
+REGION_FRACTION = 0.6
+
+
+def grid_size_m(squares_x: int, squares_y: int, square_m: float) -> tuple[float, float]:
+    return squares_x * square_m, squares_y * square_m
+
+
+def corner_ids(squares_x: int, squares_y: int) -> list[int]:
+    return list(range((squares_x - 1) * (squares_y - 1)))
+
+
+def corner_xy(squares_x: int, squares_y: int, square_m: float, corner_id: int) -> np.ndarray:
+    """(2,) board-frame x, y of an inner corner (module doc); KeyError for an unknown ID."""
+    if not 0 <= corner_id < (squares_x - 1) * (squares_y - 1):
+        raise KeyError(f"corner {corner_id} is not on a {squares_x}x{squares_y}-square grid")
+    r, c = divmod(corner_id, squares_x - 1)
+    width, height = grid_size_m(squares_x, squares_y, square_m)
+    return np.array([-width / 2 + (c + 1) * square_m, height / 2 - (r + 1) * square_m])
+
+
+def squares_block(squares_x: int, squares_y: int, square_m: float) -> CellBlock:
+    """The black squares as one block of cells (top-left black)."""
+    rows, cols = np.indices((squares_y, squares_x))
+    width, height = grid_size_m(squares_x, squares_y, square_m)
+    return CellBlock((rows + cols) % 2 == 0, -width / 2, height / 2, square_m)
+
+
+def check_grid(d: dict, source: str) -> tuple[str, tuple[float, float], int, int, float]:
+    """name, size_m, squares_x, squares_y, square_m of a board file, validated (errors name source
+    and the field); the grid must fit on the sheet with a square of white around it (the corner
+    fit's surround)."""
+    name = d.get("name")
+    if not isinstance(name, str) or not name:
+        raise BoardDefinitionError(f"{source}: field 'name' should be a non-empty string, got {name!r}")
+    size = d.get("size_m")
+    if not (isinstance(size, list) and len(size) == 2 and all(is_number(v) and v > 0 for v in size)):
+        raise BoardDefinitionError(f"{source}: field 'size_m' should be [width, height] > 0, got {size!r}")
+    squares_x = integer_field(d, "squares_x", source, least=2)
+    squares_y = integer_field(d, "squares_y", source, least=2)
+    square_m = positive_field(d, "square_m", source)
+    width, height = grid_size_m(squares_x, squares_y, square_m)
+    if width + 2 * square_m > size[0] + 1e-12 or height + 2 * square_m > size[1] + 1e-12:
+        raise BoardDefinitionError(
+            f"{source}: the {squares_x}x{squares_y} grid of {square_m * 1e3:g} mm squares with a square of "
+            f"white around it ({(width + 2 * square_m) * 1e3:.0f} x {(height + 2 * square_m) * 1e3:.0f} mm) "
+            f"does not fit on the sheet 'size_m' {size}"
+        )
+    return name, (float(size[0]), float(size[1])), squares_x, squares_y, square_m
+
+
+def is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def integer_field(d: dict, key: str, source: str, least: int, default: int | None = None) -> int:
+    value = d.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool) or value < least:
+        raise BoardDefinitionError(f"{source}: field '{key}' should be an integer >= {least}, got {value!r}")
+    return value
+
+
+def positive_field(d: dict, key: str, source: str) -> float:
+    value = d.get(key)
+    if not is_number(value) or not value > 0:
+        raise BoardDefinitionError(f"{source}: field '{key}' should be a number > 0, got {value!r}")
+    return float(value)
+
+
+class CornerFitter:
+    """Sub-pixel corners of a grid board (module doc). blocks: the board's cells (its image's
+    blocks); xy: corner ID -> (2,) board-frame position; floor_px: error per coordinate image noise
+    does not explain."""
+
+    def __init__(
+        self,
+        blocks: tuple[CellBlock, ...],
+        square_m: float,
+        xy: Callable[[int], np.ndarray],
+        floor_px: float,
+        min_correlation: float,
+    ) -> None:
+        self._blocks = blocks
+        self._square_m = square_m
+        self._xy = xy
+        self._floor_px = floor_px
+        self._min_correlation = min_correlation
+        self._template = functools.lru_cache(maxsize=1024)(self._draw_template)
+
+    def _draw_template(self, corner_id: int, px_per_square: int) -> np.ndarray:
+        """(4p, 4p) float32: the 4 x 4 squares centred on the corner, p pixels per square."""
+        x, y = self._xy(corner_id)
+        side = 4 * self._square_m
+        patch = draw_sheet((side, side), list(self._blocks), px_per_square / self._square_m, 4, (x, y))
+        return patch.astype(np.float32)
+
+    def fit(
+        self, gray: np.ndarray, found: dict[int, np.ndarray], found_by: str
+    ) -> tuple[list[MarkerDetection], list[Rejection]]:
+        """Refine every corner of ``found`` (ID -> (2,) rough pixel): a local homography through its
+        found neighbours gives the rough image of its 2 x 2 block, then the template fit."""
+        ids = np.array(sorted(found))
+        board_xy = np.array([self._xy(i) for i in ids])
+        image_uv = np.array([found[i] for i in ids])
+        markers, rejected = [], []
+        sq = self._square_m
+        # The block's corners in symbol order: top-left, top-right, bottom-right, bottom-left.
+        block = np.array([[-sq, sq], [sq, sq], [sq, -sq], [-sq, -sq]])
+        for corner_id, xy, uv in zip(ids, board_xy, image_uv, strict=True):
+            near = np.max(np.abs(board_xy - xy), axis=1) <= 1.5 * sq
+            if np.count_nonzero(near) < 4:
+                rejected.append(
+                    Rejection(f"corner {corner_id}: fewer than 4 neighbours found", int(corner_id))
+                )
+                continue
+            H, _ = cv2.findHomography(board_xy[near], image_uv[near])
+            if H is None:
+                rejected.append(
+                    Rejection(f"corner {corner_id}: its neighbours are degenerate", int(corner_id))
+                )
+                continue
+            rough = cv2.perspectiveTransform((xy + block).reshape(-1, 1, 2), H).reshape(4, 2)
+            side_px = float(np.linalg.norm(rough - np.roll(rough, 1, axis=0), axis=1).mean())
+            p = int(np.clip(round(side_px / 2), MIN_TEMPLATE_PX_PER_SQUARE, MAX_TEMPLATE_PX_PER_SQUARE))
+            try:
+                fit = fit_template(
+                    gray,
+                    rough,
+                    self._template(int(corner_id), p),
+                    TemplateFrame(2 * p, p),
+                    REGION_FRACTION,
+                    corner_floor_px=0.0,
+                    center_floor_px=self._floor_px,
+                    min_correlation=self._min_correlation,
+                )
+            except MarkerFitError as exc:
+                rejected.append(Rejection(f"corner {corner_id}: {exc}", int(corner_id), None, rough))
+                continue
+            markers.append(
+                MarkerDetection(
+                    marker_id=int(corner_id),
+                    corners_px=fit.center_px[None, :],
+                    corners_cov=fit.center_cov,
+                    center_px=fit.center_px,
+                    center_cov=fit.center_cov,
+                    quality=fit.correlation,
+                    module_agreement=1.0,
+                    noise_sigma=fit.noise_sigma,
+                    found_by=found_by,
+                    raw_corners_px=np.asarray(uv, dtype=np.float64)[None, :],
+                    depth_region_px=fit.corners_px,
+                )
+            )
+        return markers, rejected

@@ -1,0 +1,179 @@
+"""The chessboard: a grid of black and white squares whose inner corners are one-point markers.
+
+Board file fields: ``squares_x``, ``squares_y`` (squares, not inner corners: OpenCV's pattern
+size is one less each), ``square_m`` and the sheet's ``size_m``; grid, corner IDs and frames as
+estimator.targets.checker says. One of squares_x, squares_y must be odd and the other even: only
+then does a half-turn change the squares' colours, so the board's orientation can be read off
+the image (an odd-by-odd or even-by-even board looks the same turned, and its IDs would be a
+guess).
+
+Detection: OpenCV's findChessboardCornersSB finds the whole grid (a chessboard needs every corner
+in view; a partial view gives the frame a problem saying so, never IDs). OpenCV lists the corners
+from any of the grid's four corners; the listing is mapped to the board's IDs by the handedness of
+the grid in the image (the printed face is seen from the front) and by which squares are dark.
+Each corner is then refined and given its covariance (checker.CornerFitter).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from estimator.targets import checker
+from estimator.targets.detection import Detections, image_problem, to_gray
+from estimator.targets.qr import DetectorSettings
+from estimator.targets.sheet import CellBlock, draw_sheet
+from estimator.targets.target import BoardDefinitionError
+
+# Error per coordinate image noise does not explain at a chessboard corner, pixels: the RMS on
+# noise-free renders of the default trajectory (chessboard_10x5: 17 views, 612 corners; 0.53 px with
+# templates of at most 12 px per square, 0.025 with 48).
+CORNER_FLOOR_PX = 0.026
+
+
+@dataclass(frozen=True)
+class ChessboardBoard:
+    """A chessboard on a sheet (module doc); lengths in metres."""
+
+    name: str
+    size_m: tuple[float, float]
+    squares_x: int
+    squares_y: int
+    square_m: float
+
+    kind = "chessboard"
+    points_per_marker = 1
+    markers_placed_one_by_one = False
+    corners_homography_fitted = False
+
+    @property
+    def marker_ids(self) -> list[int]:
+        return checker.corner_ids(self.squares_x, self.squares_y)
+
+    @property
+    def feature_m(self) -> float:
+        return self.square_m
+
+    @property
+    def visible_margin_m(self) -> float:
+        """The corner's 2 x 2 squares (its fit's block)."""
+        return self.square_m
+
+    def marker_corners(self, marker_id: int) -> np.ndarray:
+        """(1, 3) the corner in the board frame."""
+        return self.marker_center(marker_id)[None, :]
+
+    def marker_center(self, marker_id: int) -> np.ndarray:
+        x, y = checker.corner_xy(self.squares_x, self.squares_y, self.square_m, marker_id)
+        return np.array([x, y, 0.0])
+
+    def all_corners(self) -> np.ndarray:
+        """(M, 1, 3) every corner, ordered by ID."""
+        return np.stack([self.marker_corners(i) for i in self.marker_ids])
+
+    def pinned(self) -> ChessboardBoard:
+        return self
+
+    def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
+        """The sheet as an (H, W) uint8 image (sheet.draw_sheet)."""
+        return draw_sheet(self.size_m, list(self.cell_blocks()), px_per_m, supersample)
+
+    def cell_blocks(self) -> tuple[CellBlock, ...]:
+        """What is printed: the black squares."""
+        return (checker.squares_block(self.squares_x, self.squares_y, self.square_m),)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "hec-board",
+            "version": 1,
+            "kind": self.kind,
+            "name": self.name,
+            "size_m": list(self.size_m),
+            "squares_x": self.squares_x,
+            "squares_y": self.squares_y,
+            "square_m": self.square_m,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "board definition") -> ChessboardBoard:
+        """Validate and build; errors name ``source`` and the field."""
+        board = cls(*checker.check_grid(d, source))
+        if (board.squares_x + board.squares_y) % 2 == 0:
+            raise BoardDefinitionError(
+                f"{source}: fields 'squares_x' {board.squares_x} and 'squares_y' {board.squares_y}: one must "
+                "be odd and the other even, else the board looks the same turned by half a turn and its "
+                "orientation cannot be read from an image"
+            )
+        return board
+
+
+class ChessboardDetector:
+    """Finds a chessboard's inner corners (module doc)."""
+
+    def __init__(self, board: ChessboardBoard, settings: DetectorSettings | None = None) -> None:
+        self.board = board
+        self.settings = settings or DetectorSettings()
+        self._pattern = (board.squares_x - 1, board.squares_y - 1)
+        self._fitter = checker.CornerFitter(
+            board.cell_blocks(),
+            board.square_m,
+            lambda i: board.marker_center(i)[:2],
+            max(self.settings.center_floor_px, CORNER_FLOOR_PX),
+            self.settings.min_correlation,
+        )
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """The board's inner corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
+        try:
+            gray = to_gray(image)
+        except ValueError as exc:
+            return Detections(problem=str(exc))
+        problem = image_problem(gray)
+        if problem is not None:
+            return Detections(problem=problem)
+        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()), passes_run=["sb"])
+        found, grid = cv2.findChessboardCornersSB(gray, self._pattern, flags=cv2.CALIB_CB_EXHAUSTIVE)
+        if not found:
+            result.problem = (
+                f"the chessboard's {self._pattern[0]}x{self._pattern[1]} inner corners were not all found "
+                "(a chessboard needs its whole grid in view, sharp and lit)"
+            )
+            return result
+        ids = self._corner_ids(gray, grid.reshape(self._pattern[1], self._pattern[0], 2))
+        uv = grid.reshape(-1, 2).astype(np.float64)
+        result.markers, result.rejected = self._fitter.fit(
+            gray, dict(zip(ids.ravel(), uv, strict=True)), "sb"
+        )
+        result.markers.sort(key=lambda m: m.marker_id)
+        return result
+
+    def _corner_ids(self, gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
+        """(rows, cols) board IDs of OpenCV's (rows, cols, 2) grid: of the four ways to read it, the
+        one seen from the front (board x right, y up appear as a right-handed turn away from the
+        image's u right, v down) whose dark squares are dark."""
+        rows, cols = grid.shape[:2]
+        # Mean grey of each inner square (between four corners), and whether the board says dark.
+        centres = 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:])
+        map_u, map_v = (centres[..., k].astype(np.float32) for k in (0, 1))
+        grey = cv2.remap(gray.astype(np.float32), map_u, map_v, cv2.INTER_LINEAR)
+        best, best_contrast = None, -np.inf
+        for flip_rows in (False, True):
+            for flip_cols in (False, True):
+                r = np.arange(rows)[::-1] if flip_rows else np.arange(rows)
+                c = np.arange(cols)[::-1] if flip_cols else np.arange(cols)
+                ids = r[:, None] * cols + c[None, :]
+                # Board x along increasing c, board y along decreasing r, in the image.
+                x_img = (grid[:, 1:] - grid[:, :-1]).mean(axis=(0, 1)) * (-1 if flip_cols else 1)
+                y_img = -(grid[1:] - grid[:-1]).mean(axis=(0, 1)) * (-1 if flip_rows else 1)
+                if x_img[0] * y_img[1] - x_img[1] * y_img[0] >= 0:
+                    continue  # the back of the sheet: not a view of the printed face
+                # The square right of and below corner (r, c) is square (r + 1, c + 1): dark when even.
+                square_r = np.minimum(r[:-1], r[1:]) + 1
+                square_c = np.minimum(c[:-1], c[1:]) + 1
+                dark = (square_r[:, None] + square_c[None, :]) % 2 == 0
+                contrast = float(grey[~dark].mean() - grey[dark].mean())
+                if contrast > best_contrast:
+                    best, best_contrast = ids, contrast
+        return best

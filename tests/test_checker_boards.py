@@ -1,0 +1,139 @@
+"""Chessboard and ChArUco kinds: board files, OpenCV's pattern and frame, IDs under any rotation,
+partial views, and honest corner covariances."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimator.targets.charuco import CharucoBoard
+from estimator.targets.chessboard import ChessboardBoard
+from estimator.targets.kinds import board_from_dict, detector_for, find_board
+from estimator.targets.target import BoardDefinitionError
+from tests.sheet_views import (
+    PX_PER_M,
+    apply,
+    as_camera_sees,
+    noisy_copies,
+    quarter_turned,
+    sheet_px,
+    tilted_homography,
+    warped_view,
+)
+
+BOARDS = ("chessboard_10x5", "charuco_10x5")
+
+
+@pytest.mark.parametrize("name", BOARDS)
+def test_board_files_read_back_and_number_corners_as_opencv(name: str) -> None:
+    board = find_board(name)
+    assert board.points_per_marker == 1 and not board.markers_placed_one_by_one
+    assert board_from_dict(board.to_dict(), "copy") == board
+    assert board.marker_ids == list(range(36))  # 9 x 4 inner corners
+    # ID 0 at the top-left inner corner, row-major to the right then down (OpenCV's ChArUco IDs).
+    first, second, next_row = (board.marker_center(i) for i in (0, 1, 9))
+    np.testing.assert_allclose(first[:2], [-0.15 + 0.03, 0.075 - 0.03])
+    np.testing.assert_allclose(second - first, [0.03, 0.0, 0.0])
+    np.testing.assert_allclose(next_row - first, [0.0, -0.03, 0.0])
+
+
+def test_the_charuco_sheet_is_opencvs_pattern_and_its_corners_opencvs() -> None:
+    board = find_board("charuco_10x5")
+    assert isinstance(board, CharucoBoard)
+    opencv = board.opencv_board()
+    width_px, height_px = round(0.3 * PX_PER_M), round(0.15 * PX_PER_M)
+    drawn = opencv.generateImage((width_px, height_px), marginSize=0, borderBits=1)
+    top, left = round((0.22 - 0.15) / 2 * PX_PER_M), round((0.4 - 0.3) / 2 * PX_PER_M)
+    np.testing.assert_array_equal(board.image(PX_PER_M)[top : top + height_px, left : left + width_px], drawn)
+    # OpenCV's frame: origin at the grid's top-left, y down, z into the board (module doc of checker).
+    p_opencv = np.asarray(opencv.getChessboardCorners())
+    p_hec = board.all_corners()[:, 0]
+    np.testing.assert_allclose(
+        p_opencv, np.column_stack([p_hec[:, 0] + 0.15, 0.075 - p_hec[:, 1], -p_hec[:, 2]])
+    )
+
+
+@pytest.mark.parametrize(
+    ("name", "change", "message"),
+    [
+        ("chessboard_10x5", {"squares_x": 9}, "one must be odd and the other even"),
+        ("chessboard_10x5", {"squares_x": 1}, "field 'squares_x' should be an integer >= 2"),
+        ("chessboard_10x5", {"square_m": 0.04}, "does not fit on the sheet"),
+        ("chessboard_10x5", {"name": ""}, "field 'name' should be a non-empty string"),
+        ("charuco_10x5", {"marker_m": 0.03}, "field 'marker_m' 0.03 should be smaller than 'square_m'"),
+        ("charuco_10x5", {"dictionary": "DICT_9X9"}, "field 'dictionary' should name an OpenCV ArUco"),
+        (
+            "charuco_10x5",
+            {
+                "dictionary": "DICT_4X4_50",
+                "squares_x": 12,
+                "squares_y": 9,
+                "square_m": 0.015,
+                "marker_m": 0.01,
+            },
+            "needs 54 markers; 'dictionary' DICT_4X4_50 has 50",
+        ),
+    ],
+)
+def test_bad_fields_are_named(name: str, change: dict, message: str) -> None:
+    with pytest.raises(BoardDefinitionError, match="board.json") as error:
+        board_from_dict(find_board(name).to_dict() | change, "board.json")
+    assert message in str(error.value)
+
+
+@pytest.mark.parametrize("quarter_turns", [0, 1, 2, 3])
+@pytest.mark.parametrize("name", BOARDS)
+def test_ids_and_corners_under_any_rotation(name: str, quarter_turns: int) -> None:
+    """Corners land where the board frame puts them, however the sheet is turned in the image (a
+    half-turned reading of the grid would miss by whole squares)."""
+    board = find_board(name)
+    H = quarter_turned(tilted_homography(board, 0.7), quarter_turns)
+    detections = detector_for(board).detect(warped_view(board, H, shape=(640, 640)))
+    assert detections.problem is None
+    assert [m.marker_id for m in detections.markers] == board.marker_ids
+    for marker in detections.markers:
+        expected = apply(H, sheet_px(board, board.marker_corners(marker.marker_id)))
+        np.testing.assert_allclose(marker.corners_px, expected, atol=0.1)
+        assert marker.corners_cov.shape == (2, 2) and marker.depth_region_px.shape == (4, 2)
+
+
+def test_a_chessboard_seen_in_part_gives_a_problem_not_ids() -> None:
+    board = find_board("chessboard_10x5")
+    assert isinstance(board, ChessboardBoard)
+    H = np.diag([1.5, 1.5, 1.0]) @ tilted_homography(board)  # the grid overflows the image
+    detections = detector_for(board).detect(warped_view(board, H))
+    assert detections.markers == []
+    assert "a chessboard needs its whole grid in view" in detections.problem
+
+
+def test_a_charuco_board_seen_in_part_gives_the_corners_inside() -> None:
+    board = find_board("charuco_10x5")
+    H = np.diag([1.5, 1.5, 1.0]) @ tilted_homography(board)
+    detections = detector_for(board).detect(warped_view(board, H))
+    assert 4 <= len(detections.markers) < len(board.marker_ids)
+    for marker in detections.markers:
+        expected = apply(H, sheet_px(board, board.marker_corners(marker.marker_id)))
+        np.testing.assert_allclose(marker.corners_px, expected, atol=0.05)
+
+
+@pytest.mark.parametrize("name", BOARDS)
+def test_corner_covariance_matches_the_scatter_of_noisy_fits(name: str) -> None:
+    """Over repeated noise draws the corners scatter as their covariance, less its floor, says (the
+    QR fit's bounds, test_detect)."""
+    board = find_board(name)
+    detector = detector_for(board)
+    floor_px = np.sqrt(
+        detector.detect(warped_view(board, tilted_homography(board))).markers[0].center_cov[0, 0]
+    )
+    clean = as_camera_sees(warped_view(board, tilted_homography(board)))
+    fits: dict[int, list] = {}
+    for noisy in noisy_copies(clean, 6.0, 25, np.random.default_rng(5)):
+        for m in detector.detect(noisy).markers:
+            fits.setdefault(m.marker_id, []).append((m.center_px, m.center_cov))
+    ratios = []
+    for per_corner in fits.values():
+        scatter = np.cov(np.array([c for c, _ in per_corner]).T)
+        reported = np.mean([c for _, c in per_corner], axis=0) - floor_px**2 * np.eye(2)
+        ratios.append(np.trace(scatter) / np.trace(reported))
+    assert len(fits) == len(board.marker_ids)
+    assert 0.6 <= float(np.median(ratios)) <= 1.6
