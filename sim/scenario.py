@@ -302,15 +302,21 @@ class Scenario(Section):
         return data
 
 
+def resolve_scenario_path(path: str | Path) -> Path:
+    """The scenario file: ``path`` itself, or for a bare name of models/scenarios/ ("realistic") that one."""
+    path = Path(path)
+    named = models_dir() / "scenarios" / f"{path}.toml"
+    if not path.exists() and path.suffix == "" and named.is_file():
+        return named
+    return path
+
+
 def load_scenario(path: str | Path | None) -> Scenario:
     """Read and validate a scenario file; a name of models/scenarios/ without .toml ("realistic")
     reads that one; None gives the default scenario."""
     if path is None:
         return Scenario()
-    path = Path(path)
-    named = models_dir() / "scenarios" / f"{path}.toml"
-    if not path.exists() and path.suffix == "" and named.is_file():
-        path = named
+    path = resolve_scenario_path(path)
     data = read_toml(path, ScenarioError, "scenario")
     if "base_dir" in data:
         raise ScenarioError(f"{path}: key 'base_dir': unknown key")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from estimator.io.models import models_dir
-from estimator.targets.kinds import find_board
+from estimator.targets.kinds import detector_for, find_board
 from experiments.bench.targets import board_trial
 from experiments.printable import printable_board
 
@@ -50,3 +50,14 @@ def test_rendered_default_trajectory_meets_the_acceptance(name: str) -> None:
     assert 0.7 <= trial["corner_nees"] <= 1.5
     error_mm, error_deg, _ = trial["ekf"]
     assert error_mm <= 0.5 and error_deg <= 0.05
+    # The corner-noise learning starts from the floors this kind's covariances hold, not the QR codes'.
+    detector = detector_for(find_board(name))
+    assert trial["corner_noise"].constant_px == detector.corner_floor_px
+    assert trial["corner_noise"].center_constant_px == detector.center_floor_px
+
+
+def test_the_target_sweep_compares_every_board_file() -> None:
+    from experiments.sweep.config import load_config
+
+    config = load_config(models_dir() / "sweeps" / "targets.toml")
+    assert sorted(config.grid["board"]) == BOARDS

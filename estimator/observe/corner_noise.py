@@ -13,7 +13,8 @@ the view of frame i: a homography H_i from the board plane to undistorted normal
 coordinates (8 unknowns per frame: any board pose and any error of K) with the height z out
 of the sheet added along the board normal that H_i implies; dk1, dk2 the radial distortion
 the dataset does not declare; shift_m where the printer put marker m (2 per marker, shared
-by all frames; a weak prior fixes the common shift every H_i absorbs); and z = c0 x^2 +
+by all frames; a weak prior fixes the common shift every H_i absorbs; only on boards whose
+markers are placed one by one, Target.markers_placed_one_by_one); and z = c0 x^2 +
 c1 x y + c2 y^2 the sheet's bend (3 unknowns; lower orders are a pose). What this model
 leaves is the corners' own error: on the realistic cell's true corners (K 0.3 % and 3 px
 off, the lens undeclared, a 0.7 mm bend, shifted markers) it leaves 0.008 px RMS.
@@ -47,6 +48,7 @@ from scipy.sparse import lil_matrix
 
 from estimator.geometry.camera import CameraIntrinsics, distort, pixel_rays
 from estimator.observe.observations import FrameObservations, with_pixel_floor
+from estimator.targets.kinds import detector_for
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.target import Target
 
@@ -149,13 +151,13 @@ class BoardFit:
         return float(np.sqrt(self.residuals.size / max(self.dof, 1)))
 
 
-def _views(observations: list[FrameObservations], board: Target, settings: DetectorSettings) -> _Views:
+def _views(observations: list[FrameObservations], board: Target, corner_floor_px: float) -> _Views:
     """The corners the fit can use (of the frames with 2 or more markers), with the constant
-    floor taken out of their variances."""
+    floor their covariances hold taken out of their variances."""
     usable = [o for o in observations if o.problem is None and len(o.markers) >= 2]
     markers = [(f, m) for f, o in enumerate(usable) for m in o.markers]
     ids = sorted({m.marker_id for _, m in markers})
-    var = [np.diag(m.corners_cov) - settings.corner_floor_px**2 for _, m in markers]
+    var = [np.diag(m.corners_cov) - corner_floor_px**2 for _, m in markers]
     P = board.points_per_marker
     return _Views(
         frame=np.array([f for f, _ in markers], dtype=int),
@@ -188,15 +190,17 @@ def _through(H: np.ndarray, xy: np.ndarray, z: np.ndarray) -> np.ndarray:
 
 class _Model:
     """The board-views model of the module docstring over one _Views. Unknowns, packed: H_i
-    flat[:8] per frame; dk1, dk2 if lens; if printed, the sheet's height z = c0 x^2 + c1 x y +
-    c2 y^2 (metres, the board centre at 0; lower orders are a pose) and each marker's shift."""
+    flat[:8] per frame; dk1, dk2 if lens; if bend, the sheet's height z = c0 x^2 + c1 x y +
+    c2 y^2 (metres, the board centre at 0; lower orders are a pose); if shifts, each marker's shift."""
 
-    def __init__(self, views: _Views, intrinsics: CameraIntrinsics, lens: bool, printed: bool) -> None:
+    def __init__(
+        self, views: _Views, intrinsics: CameraIntrinsics, lens: bool, shifts: bool, bend: bool
+    ) -> None:
         self.views, self.intrinsics = views, intrinsics
         self.n_h = 8 * views.n_frames
         self.n_lens = 2 if lens else 0
-        self.n_shape = 3 if printed else 0
-        self.n_shift = 2 * len(views.board_xy) if printed else 0
+        self.n_shape = 3 if bend else 0
+        self.n_shift = 2 * len(views.board_xy) if shifts else 0
         self.size = self.n_h + self.n_lens + self.n_shape + self.n_shift
 
     def unpack(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -262,11 +266,11 @@ def fit_board_views(
 ) -> BoardFit | None:
     """The robust fit of the module docstring's model to the corners of observations detected
     with settings, without the lens deltas if lens is False and without the sheet's bend and
-    the markers' shifts if printed is False; None when it leaves fewer than MIN_DOF degrees
-    of freedom.
+    the markers' shifts if printed is False (no shifts on a board printed as one pattern); None
+    when it leaves fewer than MIN_DOF degrees of freedom.
     Least squares first, then a soft-L1 loss at LOSS_SCALE robust sigmas."""
-    views = _views(observations, board, settings)
-    model = _Model(views, intrinsics, lens, printed)
+    views = _views(observations, board, detector_for(board, settings).corner_floor_px)
+    model = _Model(views, intrinsics, lens, printed and board.markers_placed_one_by_one, printed)
     n = views.points_px.size
     if n - model.size < MIN_DOF:
         return None
@@ -328,25 +332,27 @@ def measure_corner_noise(
     intrinsics: CameraIntrinsics,
     settings: DetectorSettings,
 ) -> CornerNoise:
-    """The corner noise of a dataset's observations (detected with ``settings``, whose constant
-    floors their covariances hold) and the floors the covariances should use."""
+    """The corner noise of a dataset's observations (detected with ``settings`` by the board's
+    detector, whose constant floors their covariances hold) and the floors the covariances should use."""
+    detector = detector_for(board, settings)
+    corner_floor, center_floor = detector.corner_floor_px, detector.center_floor_px
     constant = {
-        "floor_px": settings.corner_floor_px,
-        "center_floor_px": settings.center_floor_px,
-        "constant_px": settings.corner_floor_px,
-        "center_constant_px": settings.center_floor_px,
+        "floor_px": corner_floor,
+        "center_floor_px": center_floor,
+        "constant_px": corner_floor,
+        "center_constant_px": center_floor,
     }
     fit = fit_board_views(observations, board, intrinsics, settings)
     if fit is None:
         return CornerNoise(
             **constant, reason=f"fewer than {MIN_DOF} degrees of freedom in the frames with 2+ markers"
         )
-    floor = max(learned_floor(fit.residuals, fit.image_var, fit.dof_factor), settings.corner_floor_px)
+    floor = max(learned_floor(fit.residuals, fit.image_var, fit.dof_factor), corner_floor)
     return CornerNoise(
         floor_px=floor,
-        center_floor_px=floor * settings.center_floor_px / settings.corner_floor_px,
-        constant_px=settings.corner_floor_px,
-        center_constant_px=settings.center_floor_px,
+        center_floor_px=floor * center_floor / corner_floor,
+        constant_px=corner_floor,
+        center_constant_px=center_floor,
         measured_px=measured_noise(fit.residuals, fit.dof_factor),
         frames=fit.frames,
         corners=fit.residuals.size // 2,

@@ -231,6 +231,8 @@ class AprilGridDetector:
         parameters.markerBorderBits = board.border_bits
         self._aruco = cv2.aruco.ArucoDetector(_dictionary(), parameters)
         self._ids = set(board.marker_ids)
+        self.corner_floor_px = max(self.settings.corner_floor_px, TAG_CORNER_FLOOR_PX)
+        self.center_floor_px = max(self.settings.center_floor_px, TAG_CENTER_FLOOR_PX)
 
     def detect(self, image: np.ndarray) -> Detections:
         """The board's tags in an (H, W, 3) RGB or (H, W) grey uint8 image."""
@@ -282,8 +284,8 @@ class AprilGridDetector:
                 gray,
                 corners_tl,
                 tag_cells(tag_id, self.board.border_bits),
-                corner_floor_px=max(s.corner_floor_px, TAG_CORNER_FLOOR_PX),
-                center_floor_px=max(s.center_floor_px, TAG_CENTER_FLOOR_PX),
+                corner_floor_px=self.corner_floor_px,
+                center_floor_px=self.center_floor_px,
                 min_correlation=s.min_correlation,
                 max_template_px_per_module=MAX_TEMPLATE_PX_PER_CELL,
             )

@@ -116,11 +116,13 @@ class ChessboardDetector:
         self.board = board
         self.settings = settings or DetectorSettings()
         self._pattern = (board.squares_x - 1, board.squares_y - 1)
+        # A corner is its own centre: one floor for both.
+        self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, CORNER_FLOOR_PX)
         self._fitter = checker.CornerFitter(
             board.cell_blocks(),
             board.square_m,
             lambda i: board.marker_center(i)[:2],
-            max(self.settings.center_floor_px, CORNER_FLOOR_PX),
+            self.corner_floor_px,
             self.settings.min_correlation,
         )
 

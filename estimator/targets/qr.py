@@ -121,6 +121,8 @@ class QRDetector:
         self.board = board
         self.settings = settings or DetectorSettings()
         self._passes = [parse_pass(p) for p in self.settings.passes]
+        self.corner_floor_px = self.settings.corner_floor_px
+        self.center_floor_px = self.settings.center_floor_px
         # Markers found printed otherwise than the board defines, as printed.
         self._printed: dict[int, SymbolSpec] = {}
 

@@ -24,6 +24,12 @@ class BoardDefinitionError(ValueError):
 
 
 class TargetDetector(Protocol):
+    """Finds a target's markers. corner_floor_px, center_floor_px: the error per coordinate image
+    noise does not explain that its corner and centre covariances hold (pixels)."""
+
+    corner_floor_px: float
+    center_floor_px: float
+
     def detect(self, image: np.ndarray) -> Detections:
         """The target's markers in an (H, W, 3) RGB or (H, W) grey uint8 image."""
         ...

@@ -7,8 +7,12 @@ detection time per frame (including the depth fit), and per method the median an
 translation and rotation error of T_flange_cam over the seeds with its mean pose NEES (6 when the
 reported covariance is honest).
 
-    .venv/bin/python -m experiments.bench.targets [--seeds 3] [--boards NAME,...]   (default: every
-                                                                            board in models/boards/)
+    .venv/bin/python -m experiments.bench.targets [--seeds 3] [--boards NAME,...] [--scenario realistic]
+    (default: every board in models/boards/, the ideal default cell)
+
+With --scenario, the cell's model errors apply to every board; a board printed as one pattern
+(every kind but QR) gets no per-marker placement error (errors.board.marker_placement_sigma_m = 0),
+the rest of the print error (scale, bend) as the scenario says.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import contextlib
 import io
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -25,32 +30,48 @@ import sim  # noqa: F401  (selects the GL backend before mujoco loads)
 from estimator.geometry.lie import pose_nees
 from estimator.geometry.transforms import pose_error
 from estimator.io.models import models_dir
+from estimator.io.tomlfile import read_toml
 from estimator.observe.grading import grade_observations
 from estimator.solve.calibration import MethodOptions
 from estimator.solve.methods import solve
 from estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+from estimator.targets.kinds import find_board
 from estimator.targets.qr import DetectorSettings
 from experiments.detection import detect_dataset
-from sim.scenario import scenario_from_dict
+from sim.scenario import Scenario, ScenarioError, resolve_scenario_path, scenario_from_dict
 from sim.simulate import simulate_in_memory
 
 BOARDS = tuple(sorted(p.stem for p in (models_dir() / "boards").glob("*.json")))
 METHODS = ("ekf", "batch", "opencv-park", "opencv-daniilidis")
 
 
-def board_trial(board: str, seed: int) -> dict:
-    """Render the default scenario with this board, detect, grade and calibrate: the measurement
-    summary (grading.MeasurementErrors.summary), ms_per_frame, frames, and per method its
+def board_scenario(board: str, scenario: str | None = None) -> Scenario:
+    """The scenario (a file or a name in models/scenarios/; None: the default) with this board (module
+    doc: no per-marker placement error on a board printed as one pattern)."""
+    path = resolve_scenario_path(scenario) if scenario is not None else None
+    data = read_toml(path, ScenarioError, "scenario") if path is not None else {}
+    data["board"] = {**data.get("board", {}), "definition": board}
+    if not find_board(board).markers_placed_one_by_one and "board" in data.get("errors", {}):
+        data["errors"]["board"]["marker_placement_sigma_m"] = 0.0
+    return scenario_from_dict(
+        data, source=f"bench {board} {scenario or 'default'}", base_dir=path.parent if path else Path(".")
+    )
+
+
+def board_trial(board: str, seed: int, scenario: str | None = None) -> dict:
+    """Render the scenario (board_scenario) with this board, detect, grade and calibrate: the
+    measurement summary (grading.MeasurementErrors.summary), ms_per_frame, frames, corner_noise (the
+    learned floor, estimator.observe.corner_noise.CornerNoise), and per method its
     (translation mm, rotation deg, pose NEES) or the failure's message."""
-    scenario = scenario_from_dict({"board": {"definition": board}}, source=f"bench {board}")
+    scenario = board_scenario(board, scenario)
     with contextlib.redirect_stderr(io.StringIO()):
         dataset = simulate_in_memory(scenario, seed, name=f"{board} seed {seed}")
     start = time.perf_counter()
-    observations, _ = detect_dataset(dataset, DetectorSettings(), quiet=True)
+    observations, corner_noise = detect_dataset(dataset, DetectorSettings(), quiet=True)
     ms_per_frame = 1e3 * (time.perf_counter() - start) / len(dataset)
     truth = dataset.ground_truth
     result = grade_observations(observations, truth, dataset.board, dataset.intrinsics).summary()
-    result |= {"ms_per_frame": ms_per_frame, "frames": len(dataset)}
+    result |= {"ms_per_frame": ms_per_frame, "frames": len(dataset), "corner_noise": corner_noise}
     problem = build_problem(
         observations,
         dataset.board,
@@ -106,9 +127,13 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--seeds", type=int, default=3, help="seeds per board (default 3)")
     parser.add_argument("--boards", default=",".join(BOARDS), help="comma-separated board names")
+    parser.add_argument(
+        "--scenario", help="a scenario file or name in models/scenarios/ (default: the ideal cell)"
+    )
     args = parser.parse_args(argv)
     for board in args.boards.split(","):
-        print(_table(board, [board_trial(board, seed) for seed in range(args.seeds)]), flush=True)
+        trials = [board_trial(board, seed, args.scenario) for seed in range(args.seeds)]
+        print(_table(board, trials), flush=True)
 
 
 if __name__ == "__main__":

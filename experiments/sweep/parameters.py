@@ -141,7 +141,7 @@ PARAMETERS: dict[str, Parameter] = {
             "a board name in models/boards/ or a board file relative to the scenario",
             lambda v: isinstance(v, str) and v != "",
             "the calibration target (scenario board.definition): any kind, for example hec_8qr, "
-            "charuco_11x6, chessboard_11x6, aprilgrid_6x3",
+            "charuco_10x5, chessboard_10x5, aprilgrid_6x3",
         ),
         Parameter(
             "mount",
