@@ -103,8 +103,9 @@ def write_board(name: str, out: Path, dpi: float, definition: Path | None = None
         if new_definition:
             definition.unlink(missing_ok=True)  # no definition of a sheet that was not written
         raise
+    stated = " (each marker's QR version, error correction and mask)" if board.kind == "qr" else ""
     return [
         f"wrote {path} at {dpi:g} dpi: print at 100% scale and check the 100 mm bar",
-        f"wrote {definition}: the definition of this print (each marker's QR version, error correction "
-        "and mask); give it to the cell or scenario that uses this board",
+        f"wrote {definition}: the definition of this print{stated}; give it to the cell or scenario that "
+        "uses this board",
     ]

@@ -4,12 +4,16 @@ calibrated mount)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from PIL import Image
 
 from estimator.io.models import models_dir
-from estimator.targets.kinds import detector_for, find_board
+from estimator.targets.kinds import detector_for, find_board, load_board
 from experiments.bench.targets import board_trial
+from experiments.cli import main
 from experiments.printable import printable_board
 
 BOARDS = sorted(p.stem for p in (models_dir() / "boards").glob("*.json"))
@@ -37,6 +41,16 @@ def test_the_printed_sheet_is_true_scale_with_a_100_mm_bar(name: str, dpi: float
     # The bar: the longest dark run along a row of that bottom margin.
     bar_mm = max(_longest_dark_run(row) for row in sheet[first_row:]) / px_per_m * 1000.0
     assert abs(bar_mm - 100.0) <= 25.4 / dpi, bar_mm  # within a pixel
+
+
+@pytest.mark.parametrize("name", ["aprilgrid_6x3", "charuco_10x5", "chessboard_10x5"])
+def test_hec_board_prints_every_kind_with_its_dpi(name: str, tmp_path: Path, capsys) -> None:
+    assert main(["board", "--board", name, "--out", str(tmp_path / "sheet.png"), "--dpi", "150"]) == 0
+    assert "QR version" not in capsys.readouterr().out
+    with Image.open(tmp_path / "sheet.png") as png:
+        assert png.info["dpi"] == pytest.approx((150, 150), abs=0.02)  # PNG stores dots per metre
+        np.testing.assert_array_equal(np.asarray(png), printable_board(find_board(name), 150.0))
+    assert load_board(tmp_path / "sheet.json") == find_board(name)
 
 
 @pytest.mark.parametrize("name", BOARDS)
