@@ -12,7 +12,9 @@ folder a person can open without this project::
                         skipped waypoints
     board.json          the board definition (hec-board v1)
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported T_base_flange as
-                        x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..q6_rad; a recorded session adds waypoint
+                        x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..qN_rad (any N, 0 too: N from the header;
+                        6 for a UR arm); depth empty for a frame without depth, rgb empty in a dataset
+                        of pose pairs (estimator.observe.pose_pairs); a recorded session adds waypoint
                         (the waypoint's index) and depth_samples (its image, or empty)
     rgb/NNNNNN.png      colour, 8-bit RGB
     depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
@@ -53,20 +55,16 @@ from estimator.targets.target import BoardDefinitionError, Target
 
 FORMAT = "hec-dataset"
 VERSION = 1
-FRAME_COLUMNS = (
-    "frame",
-    "time_s",
-    "rgb",
-    "depth",
-    "x_m",
-    "y_m",
-    "z_m",
-    "qw",
-    "qx",
-    "qy",
-    "qz",
-    *(f"q{i}_rad" for i in range(1, 7)),
-)
+POSE_COLUMNS = ("frame", "time_s", "rgb", "depth", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
+UR_JOINTS = 6
+
+
+def frame_columns(joint_count: int = UR_JOINTS) -> tuple[str, ...]:
+    """frames.csv's columns for an arm of joint_count joints (q1_rad..qN_rad)."""
+    return (*POSE_COLUMNS, *(f"q{i}_rad" for i in range(1, joint_count + 1)))
+
+
+FRAME_COLUMNS = frame_columns()
 SESSION_COLUMNS = ("waypoint", "depth_samples")
 
 
@@ -79,12 +77,13 @@ class Frame:
     """One RGB-D capture with the robot's report.
 
     rgb: (H, W, 3) uint8, RGB order. depth_m: (H, W) float32 metres along the
-    optical axis, aligned to rgb, 0 = no depth. T_base_flange: (4, 4) reported
-    flange pose. joints: (6,) reported joint angles, radians. time_s: capture time.
+    optical axis, aligned to rgb, 0 = no depth; None for a camera without depth. T_base_flange:
+    (4, 4) reported flange pose. joints: (N,) reported joint angles, radians (6 for a UR arm, N = 0
+    when unknown). time_s: capture time.
     """
 
     rgb: np.ndarray
-    depth_m: np.ndarray
+    depth_m: np.ndarray | None
     intrinsics: CameraIntrinsics
     T_base_flange: np.ndarray
     joints: np.ndarray
@@ -152,8 +151,8 @@ class DatasetWriter:
         if self.tmp_dir.exists():
             shutil.rmtree(self.tmp_dir)
         (self.tmp_dir / "rgb").mkdir(parents=True)
-        (self.tmp_dir / "depth").mkdir()
         self.rows: list[list[str]] = []
+        self.joint_count: int | None = None
 
     def __enter__(self) -> DatasetWriter:
         return self
@@ -165,6 +164,12 @@ class DatasetWriter:
     def add_frame(self, frame: Frame) -> int:
         """Write one frame's images now and keep its row; returns the frame number."""
         index = len(self.rows)
+        if self.joint_count is None:
+            self.joint_count = len(frame.joints)
+        elif len(frame.joints) != self.joint_count:
+            raise DatasetError(
+                f"frame {index} has {len(frame.joints)} joints, the frames before it {self.joint_count}"
+            )
         self.rows.append(write_frame_files(self.tmp_dir, index, frame, self.intrinsics, self.depth_scale_m))
         return index
 
@@ -172,7 +177,7 @@ class DatasetWriter:
         """Write the tables and metadata, then move the dataset into place."""
         with open_text(self.tmp_dir / "frames.csv", "w") as f:
             writer = csv.writer(f, lineterminator="\n")
-            writer.writerow(FRAME_COLUMNS)
+            writer.writerow(frame_columns(UR_JOINTS if self.joint_count is None else self.joint_count))
             writer.writerows(self.rows)
         dump_json(self.tmp_dir / "board.json", self.board.to_dict())
         if ground_truth is not None:
@@ -193,17 +198,22 @@ def write_frame_files(
     root: Path, index: int, frame: Frame, intrinsics: CameraIntrinsics, depth_scale_m: float
 ) -> list[str]:
     """Check the frame against the intrinsics, write its images under root and return its
-    frames.csv row (the FRAME_COLUMNS)."""
+    frames.csv row (frame_columns of its joints; no depth image, and an empty depth field, for a
+    frame without depth)."""
     k = intrinsics
     if frame.rgb.shape != (k.height, k.width, 3) or frame.rgb.dtype != np.uint8:
         raise DatasetError(
             f"rgb must be ({k.height}, {k.width}, 3) uint8, got {frame.rgb.shape} {frame.rgb.dtype}"
         )
-    if frame.depth_m.shape != (k.height, k.width):
+    if frame.depth_m is not None and frame.depth_m.shape != (k.height, k.width):
         raise DatasetError(f"depth must be ({k.height}, {k.width}), got {frame.depth_m.shape}")
-    rgb_name, depth_name = f"rgb/{index:06d}.png", f"depth/{index:06d}.png"
+    rgb_name = f"rgb/{index:06d}.png"
     write_png(root / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
-    write_png(root / depth_name, encode_depth(frame.depth_m, depth_scale_m))
+    depth_name = ""
+    if frame.depth_m is not None:
+        depth_name = f"depth/{index:06d}.png"
+        (root / "depth").mkdir(exist_ok=True)
+        write_png(root / depth_name, encode_depth(frame.depth_m, depth_scale_m))
     t, q = xyz_quat_from_transform(frame.T_base_flange)
     values = [*t, *q, *frame.joints]
     return [str(index), repr(float(frame.time_s)), rgb_name, depth_name, *(repr(float(v)) for v in values)]
@@ -267,13 +277,21 @@ class Dataset:
         if self.frames is not None:
             return self.frames[i]
         row = self.rows[i]
+        if not row["rgb"]:
+            raise DatasetError(
+                f"{self.root / 'frames.csv'}: frame {i} has no image (a dataset of pose pairs: "
+                "its observations are pose_pairs.json)"
+            )
         rgb = _read_image(self.root / row["rgb"], cv2.IMREAD_COLOR)
-        depth = _read_image(self.root / row["depth"], cv2.IMREAD_UNCHANGED)
-        if depth.dtype != np.uint16 or depth.ndim != 2:
-            raise DatasetError(f"{self.root / row['depth']}: expected a 16-bit single-channel PNG")
+        depth_m = None
+        if row["depth"]:
+            depth = _read_image(self.root / row["depth"], cv2.IMREAD_UNCHANGED)
+            if depth.dtype != np.uint16 or depth.ndim != 2:
+                raise DatasetError(f"{self.root / row['depth']}: expected a 16-bit single-channel PNG")
+            depth_m = decode_depth(depth, self.depth_scale_m)
         return Frame(
             rgb=cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB),
-            depth_m=decode_depth(depth, self.depth_scale_m),
+            depth_m=depth_m,
             intrinsics=self.intrinsics,
             T_base_flange=row["T_base_flange"],
             joints=row["joints"],
@@ -338,18 +356,30 @@ def read_ground_truth(path: Path) -> GroundTruth:
         raise DatasetError(f"{path}: missing field {exc}") from None
 
 
+def joint_columns(fieldnames: list[str]) -> tuple[str, ...]:
+    """The joint columns of a frames.csv header: q1_rad, q2_rad, ... as far as they run unbroken."""
+    count = 0
+    while f"q{count + 1}_rad" in fieldnames:
+        count += 1
+    return frame_columns(count)[len(POSE_COLUMNS) :]
+
+
 def read_frames(path: Path) -> list[dict]:
+    """frames.csv's rows: frame, time_s, rgb and depth (file names, '' when absent), T_base_flange
+    (4, 4), joints (N,), waypoint (or None); errors name the file and the line."""
     if not path.is_file():
         raise DatasetError(f"{path}: file missing")
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
-        missing = [c for c in FRAME_COLUMNS if c not in (reader.fieldnames or [])]
+        fieldnames = reader.fieldnames or []
+        missing = [c for c in POSE_COLUMNS if c not in fieldnames]
         if missing:
             raise DatasetError(f"{path}: missing columns {missing}")
+        number_columns = (*POSE_COLUMNS[4:], *joint_columns(list(fieldnames)))
         rows = []
         for line, raw in enumerate(reader, start=2):
             try:
-                values = [float(raw[c]) for c in FRAME_COLUMNS[4:]]
+                values = [float(raw[c]) for c in number_columns]
                 if not np.all(np.isfinite([*values, float(raw["time_s"])])):
                     raise DatasetError(f"{path}: line {line}: values must be finite")
                 if int(raw["frame"]) != len(rows):

@@ -23,7 +23,9 @@ def stored_frame(frame: Frame, depth_scale_m: float) -> Frame:
     xyz, quaternion = xyz_quat_from_transform(frame.T_base_flange)
     return replace(
         frame,
-        depth_m=decode_depth(encode_depth(frame.depth_m, depth_scale_m), depth_scale_m),
+        depth_m=None
+        if frame.depth_m is None
+        else decode_depth(encode_depth(frame.depth_m, depth_scale_m), depth_scale_m),
         T_base_flange=transform_from_xyz_quat(xyz, quaternion),
     )
 
@@ -47,7 +49,7 @@ def dataset_in_memory(
             "frame": i,
             "time_s": float(frame.time_s),
             "rgb": f"rgb/{i:06d}.png",
-            "depth": f"depth/{i:06d}.png",
+            "depth": "" if frame.depth_m is None else f"depth/{i:06d}.png",
             "T_base_flange": frame.T_base_flange,
             "joints": frame.joints.astype(float),
             "waypoint": None,

@@ -27,7 +27,7 @@ import numpy as np
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.kinematics import ROBOTS, URKinematics
-from estimator.io.dataset import Dataset, DatasetError
+from estimator.io.dataset import UR_JOINTS, Dataset, DatasetError
 from estimator.observe.observations import FrameObservations, MarkerObservation
 from estimator.targets.target import Target
 
@@ -78,12 +78,15 @@ class ReportedArm:
 
 def dataset_arm(dataset: Dataset) -> ReportedArm | None:
     """The dataset's arm: its model (dataset.json 'robot_model', or a simulation's scenario robot)
-    and the joints of frames.csv; None when the model is not named or not known, or the poses are
-    the controller's TCP rather than the flange (kinematics to tool0 then miss the TCP offset)."""
+    and the joints of frames.csv; None when the model is not named or not known, the frames do not
+    all have its six joints, or the poses are the controller's TCP rather than the flange
+    (kinematics to tool0 then miss the TCP offset)."""
     meta = dataset.metadata
     name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
     if name not in ROBOTS or meta.get("pose_frame", "flange") != "flange":
         return None
+    if any(len(row["joints"]) != UR_JOINTS for row in dataset.rows):
+        return None  # the joints are not the UR arm's six
     return ReportedArm(
         ROBOTS[name], {i: np.asarray(row["joints"], float) for i, row in enumerate(dataset.rows)}
     )
