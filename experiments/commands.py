@@ -12,7 +12,7 @@ from estimator.io.dataset import DatasetError
 from estimator.observe.observations import ObservationCacheError
 from estimator.solve.problem import CalibrationInputError
 from estimator.targets.target import BoardDefinitionError
-from experiments import arguments
+from experiments import arguments, importing
 from experiments import export as export_command
 from experiments import plan as plan_command
 from experiments import verify as verify_command
@@ -149,6 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_detect(sub)
     _add_calibrate(sub)
     _add_board(sub)
+    importing.add_parser(sub)
     export_command.add_parser(sub)
     plan_command.add_parser(sub)
     verify_command.add_parser(sub)
@@ -181,10 +182,13 @@ def run(args: argparse.Namespace) -> int:
             from experiments.calibrate.command import run as run_calibrate
 
             return run_calibrate(args)
-        if args.command in ("export", "verify", "plan"):
-            return {"export": export_command, "verify": verify_command, "plan": plan_command}[
-                args.command
-            ].run(args)
+        if args.command in ("export", "verify", "plan", "import"):
+            return {
+                "export": export_command,
+                "verify": verify_command,
+                "plan": plan_command,
+                "import": importing,
+            }[args.command].run(args)
         if args.command in ("record", "run"):
             return record.run(args)
         if args.command == "teach":

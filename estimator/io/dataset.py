@@ -8,9 +8,13 @@ folder a person can open without this project::
                         noise of the reported flange poses ('robot_pose_noise': translation_sigma_m,
                         rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional), the arm
                         whose nominal kinematics the joints are read with ('robot_model', 'ur5' or 'ur5e';
-                        optional, a simulation's is its scenario's robot) and (simulation) seed, scenario,
-                        skipped waypoints
+                        optional, a simulation's is its scenario's robot), (imports) 'provenance': the
+                        layout, source files, conventions and when; 'pose_pairs_file' for a dataset of
+                        pose pairs (camera and board_file may then be null); and (simulation) seed,
+                        scenario, skipped waypoints
     board.json          the board definition (hec-board v1)
+    pose_pairs.json     a dataset of imported pose pairs only (estimator.observe.pose_pairs): its
+                        observations, which nothing regenerates
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported T_base_flange as
                         x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..qN_rad (any N, 0 too: N from the header;
                         6 for a UR arm); depth empty for a frame without depth, rgb empty in a dataset
@@ -127,13 +131,14 @@ def dump_json(path: Path, data: dict) -> None:
 class DatasetWriter:
     """Write a dataset; use as a context manager. Nothing appears at ``out_dir``
     until ``finish`` succeeds. An existing ``out_dir`` is replaced only with force.
-    Temporary folders of out_dir left by killed runs are removed (listed in ``removed``)."""
+    Temporary folders of out_dir left by killed runs are removed (listed in ``removed``).
+    A dataset of pose pairs (no images: add_pose) may have no intrinsics and no board."""
 
     def __init__(
         self,
         out_dir: str | Path,
-        intrinsics: CameraIntrinsics,
-        board: Target,
+        intrinsics: CameraIntrinsics | None,
+        board: Target | None,
         depth_scale_m: float,
         source: str,
         force: bool = False,
@@ -150,7 +155,7 @@ class DatasetWriter:
         self.tmp_dir = self.out_dir.parent / f".{self.out_dir.name}.partial-{os.getpid()}"
         if self.tmp_dir.exists():
             shutil.rmtree(self.tmp_dir)
-        (self.tmp_dir / "rgb").mkdir(parents=True)
+        self.tmp_dir.mkdir(parents=True)
         self.rows: list[list[str]] = []
         self.joint_count: int | None = None
 
@@ -173,16 +178,31 @@ class DatasetWriter:
         self.rows.append(write_frame_files(self.tmp_dir, index, frame, self.intrinsics, self.depth_scale_m))
         return index
 
+    def add_pose(self, T_base_flange: np.ndarray, time_s: float) -> int:
+        """A frame without images (a pose pair's robot pose); returns the frame number."""
+        index = len(self.rows)
+        self.joint_count = 0
+        t, q = xyz_quat_from_transform(T_base_flange)
+        self.rows.append([str(index), repr(float(time_s)), "", "", *(repr(float(v)) for v in (*t, *q))])
+        return index
+
+    def add_file(self, name: str, text: str) -> None:
+        """Another file of the dataset (name relative to its folder), written with it."""
+        write_atomic(self.tmp_dir / name, text)
+
     def finish(self, ground_truth: GroundTruth | None = None, extra: dict | None = None) -> Path:
         """Write the tables and metadata, then move the dataset into place."""
         with open_text(self.tmp_dir / "frames.csv", "w") as f:
             writer = csv.writer(f, lineterminator="\n")
             writer.writerow(frame_columns(UR_JOINTS if self.joint_count is None else self.joint_count))
             writer.writerows(self.rows)
-        dump_json(self.tmp_dir / "board.json", self.board.to_dict())
+        if self.board is not None:
+            dump_json(self.tmp_dir / "board.json", self.board.to_dict())
         if ground_truth is not None:
             dump_json(self.tmp_dir / "ground_truth.json", ground_truth_dict(ground_truth))
         meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
+        if self.board is None:
+            meta["board_file"] = None
         dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
         if self.out_dir.exists():
             trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
@@ -208,6 +228,7 @@ def write_frame_files(
     if frame.depth_m is not None and frame.depth_m.shape != (k.height, k.width):
         raise DatasetError(f"depth must be ({k.height}, {k.width}), got {frame.depth_m.shape}")
     rgb_name = f"rgb/{index:06d}.png"
+    (root / "rgb").mkdir(exist_ok=True)
     write_png(root / rgb_name, cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
     depth_name = ""
     if frame.depth_m is not None:
@@ -235,7 +256,7 @@ def ground_truth_dict(truth: GroundTruth) -> dict:
 
 
 def dataset_json(
-    intrinsics: CameraIntrinsics,
+    intrinsics: CameraIntrinsics | None,
     depth_scale_m: float,
     source: str,
     frame_count: int,
@@ -247,7 +268,7 @@ def dataset_json(
         "version": VERSION,
         "source": source,
         "frame_count": frame_count,
-        "camera": intrinsics.to_dict(),
+        "camera": None if intrinsics is None else intrinsics.to_dict(),
         "depth_scale_m": depth_scale_m,
         "depth": "aligned to the colour image, along the optical axis; 0 = no depth",
         "flange_pose": "reported T_base_flange: tool0 in the base frame; metres, quaternion w x y z",
@@ -259,12 +280,14 @@ def dataset_json(
 
 @dataclass
 class Dataset:
-    """A dataset opened for reading; ``frame(i)`` loads images on demand (held in memory: from frames)."""
+    """A dataset opened for reading; ``frame(i)`` loads images on demand (held in memory: from frames).
+    A dataset of pose pairs (dataset.json 'pose_pairs_file') may have no intrinsics and no board
+    (None)."""
 
     root: Path
     metadata: dict
-    intrinsics: CameraIntrinsics
-    board: Target
+    intrinsics: CameraIntrinsics | None
+    board: Target | None
     depth_scale_m: float
     rows: list[dict]
     ground_truth: GroundTruth | None
@@ -319,15 +342,18 @@ def load_dataset(path: str | Path) -> Dataset:
         raise DatasetError(f"{meta_path}: field 'format' should be {FORMAT!r}, got {meta.get('format')!r}")
     if meta.get("version") != VERSION:
         raise DatasetError(f"{meta_path}: field 'version' should be {VERSION}, got {meta.get('version')!r}")
+    pose_pairs = bool(meta.get("pose_pairs_file"))
     try:
-        intrinsics = CameraIntrinsics.from_dict(meta["camera"])
+        camera = meta["camera"]
+        intrinsics = None if camera is None and pose_pairs else CameraIntrinsics.from_dict(camera)
         depth_scale = float(meta["depth_scale_m"])
     except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(
             f"{meta_path}: field 'camera' or 'depth_scale_m' missing or malformed ({exc})"
         ) from None
+    board_file = meta.get("board_file", "board.json")
     try:
-        board = load_board(root / meta.get("board_file", "board.json"))
+        board = None if board_file is None and pose_pairs else load_board(root / board_file)
     except BoardDefinitionError as exc:
         raise DatasetError(str(exc)) from None
     rows = read_frames(root / meta.get("frames_file", "frames.csv"))

@@ -51,8 +51,8 @@ class PosePair:
     covariance: np.ndarray | None = None
 
 
-def write_pose_pairs(path: str | Path, pairs: list[PosePair], source: dict) -> Path:
-    """Write pose_pairs.json (through a temporary name). source: where the pairs came from."""
+def pose_pairs_json(pairs: list[PosePair], source: dict) -> str:
+    """The text of a pose_pairs.json holding pairs. source: where the pairs came from."""
     data = {
         "format": POSE_PAIRS_FORMAT,
         "version": POSE_PAIRS_VERSION,
@@ -69,7 +69,12 @@ def write_pose_pairs(path: str | Path, pairs: list[PosePair], source: dict) -> P
             for p in pairs
         ],
     }
-    return write_atomic(Path(path), json.dumps(data, indent=1) + "\n")
+    return json.dumps(data, indent=1) + "\n"
+
+
+def write_pose_pairs(path: str | Path, pairs: list[PosePair], source: dict) -> Path:
+    """Write pose_pairs.json (through a temporary name). source: where the pairs came from."""
+    return write_atomic(Path(path), pose_pairs_json(pairs, source))
 
 
 def read_pose_pairs(path: str | Path) -> tuple[list[PosePair], dict]:

@@ -1,0 +1,110 @@
+"""hec datasets from other tools' layouts (estimator.io.layouts), written atomically, with where they
+came from in dataset.json's ``provenance``: the layout, the source files, the pose convention, the
+pose numbers as the source wrote them (so a later convention check can read them otherwise), the
+hec version and the time of the import."""
+
+from __future__ import annotations
+
+import datetime
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import DatasetWriter, Frame
+from estimator.io.depth_png import decode_depth
+from estimator.io.layouts import LayoutError, LayoutFrames
+from estimator.observe.pose_pairs import POSE_PAIRS_FILE, PosePair, pose_pairs_json
+from estimator.targets.target import Target
+
+
+def provenance(layout: str, sources: list[str | Path], frames: LayoutFrames | None = None) -> dict:
+    """dataset.json's 'provenance' of an import: layout, absolute source paths, the pose convention
+    and pose numbers (image layouts), the hec version and the time (UTC, ISO 8601)."""
+    try:
+        hec_version = version("hec")
+    except PackageNotFoundError:
+        hec_version = "unknown"
+    record: dict = {
+        "layout": layout,
+        "sources": [str(Path(s).resolve()) for s in sources],
+        "imported_by": f"hec {hec_version}",
+        "imported_at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+    if frames is not None:
+        record["pose_convention"] = frames.convention.to_dict()
+        record["pose_values"] = np.asarray(frames.pose_values, dtype=float).tolist()
+        record["images"] = [str(p.resolve()) for p in frames.images]
+    return record
+
+
+def import_images(
+    frames: LayoutFrames,
+    out: str | Path,
+    board: Target,
+    intrinsics: CameraIntrinsics,
+    depth_scale_m: float,
+    record: dict,
+    extra: dict | None = None,
+    force: bool = False,
+) -> Path:
+    """Write the layout's images, depths and poses as a hec dataset at out (nothing appears there
+    unless it completes). record: the provenance; extra: more dataset.json fields (robot_model)."""
+    T_base_flange = frames.T_base_flange
+    with DatasetWriter(out, intrinsics, board, depth_scale_m, "import", force=force) as writer:
+        for i, (image, depth) in enumerate(zip(frames.images, frames.depths, strict=True)):
+            writer.add_frame(
+                Frame(
+                    rgb=_rgb(image, intrinsics),
+                    depth_m=None if depth is None else _depth(depth, intrinsics, depth_scale_m),
+                    intrinsics=intrinsics,
+                    T_base_flange=T_base_flange[i],
+                    joints=np.zeros(0),
+                    time_s=float(i),
+                )
+            )
+        return writer.finish(extra={"provenance": record, **(extra or {})})
+
+
+def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise LayoutError(f"{path}: not a readable image")
+    _check_size(path, bgr, intrinsics)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np.ndarray:
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
+        raise LayoutError(f"{path}: expected a 16-bit single-channel depth PNG")
+    _check_size(path, raw, intrinsics)
+    return decode_depth(raw, depth_scale_m)
+
+
+def _check_size(path: Path, image: np.ndarray, intrinsics: CameraIntrinsics) -> None:
+    if image.shape[:2] != (intrinsics.height, intrinsics.width):
+        raise LayoutError(
+            f"{path}: the image is {image.shape[1]}x{image.shape[0]} but the intrinsics say "
+            f"{intrinsics.width}x{intrinsics.height}"
+        )
+
+
+def import_pose_pairs(
+    pairs: list[PosePair],
+    out: str | Path,
+    record: dict,
+    board: Target | None = None,
+    intrinsics: CameraIntrinsics | None = None,
+    force: bool = False,
+) -> Path:
+    """Write pose pairs as a hec dataset at out: frames.csv with the robot poses and no images,
+    pose_pairs.json the observations (board and intrinsics as far as known)."""
+    with DatasetWriter(out, intrinsics, board, 0.001, "import", force=force) as writer:
+        for i, pair in enumerate(pairs):
+            writer.add_pose(pair.T_base_flange, float(i))
+        renumbered = [PosePair(i, p.T_base_flange, p.T_cam_board, p.covariance) for i, p in enumerate(pairs)]
+        writer.add_file(POSE_PAIRS_FILE, pose_pairs_json(renumbered, record))
+        return writer.finish(extra={"provenance": record, "pose_pairs_file": POSE_PAIRS_FILE})

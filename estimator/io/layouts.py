@@ -1,0 +1,235 @@
+"""Other tools' hand-eye data layouts, read and written.
+
+- ``folder``: a folder of images plus a pose file in any convention (estimator.io.pose_file), one
+  pose per image: by the pose file's ``image`` column, else the images in name order; depth
+  images (16-bit PNG, same names) optionally in another folder.
+- ``visp``: ViSP's hand-eye tutorial layout: ``image-N.png`` beside ``pose_fPe_N.yaml`` (N from 1),
+  each pose ViSP's vpPoseVector YAML (``rows: 6``, ``cols: 1``, ``data``: translation in metres,
+  then theta-u, a rotation vector in radians) of the end-effector in the robot's reference frame,
+  T_base_flange.
+- ``easy_handeye2``: easy_handeye2's ``.samples`` file (a SampleList message as YAML): per sample
+  ``robot`` (for eye-in-hand T_base_effector) and ``tracking`` (T_camera_marker), each a
+  translation x y z in metres and a rotation quaternion x y z w. Pose pairs, no images.
+
+Readers return what the layout holds; errors name the file and the field. Writers exist so that a
+hec dataset can be taken to those tools (and round trips tested).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from estimator.geometry.transforms import make_transform
+from estimator.io.files import write_atomic
+from estimator.io.pose_file import PoseConvention, poses_from_values, read_pose_values, values_from_poses
+from estimator.observe.pose_pairs import PosePair
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VISP_CONVENTION = PoseConvention(
+    rotation="rotvec", angle_unit="rad", length_unit="m", direction="base-to-flange"
+)
+_VISP_POSE = re.compile(r"pose_fPe_(\d+)\.yaml$")
+
+
+class LayoutError(ValueError):
+    """A layout's files do not fit together or one is malformed; the message names the file."""
+
+
+@dataclass(frozen=True)
+class LayoutFrames:
+    """Images with their robot poses. images, depths: (N,) paths (depths None where absent).
+    pose_values: (N, k) the numbers as the source wrote them, in convention (the convention check
+    reads them in others); T_base_flange: (N, 4, 4) as read in convention."""
+
+    images: list[Path]
+    depths: list[Path | None]
+    pose_values: np.ndarray
+    convention: PoseConvention
+
+    @property
+    def T_base_flange(self) -> np.ndarray:
+        return poses_from_values(self.pose_values, self.convention)
+
+
+def read_folder(
+    images_dir: str | Path,
+    pose_file: str | Path,
+    convention: PoseConvention,
+    depth_dir: str | Path | None = None,
+) -> LayoutFrames:
+    """An image folder and its pose file (module doc)."""
+    images_dir = Path(images_dir)
+    if not images_dir.is_dir():
+        raise LayoutError(f"{images_dir}: no such image folder")
+    names, values = read_pose_values(pose_file)
+    on_disk = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if any(n is not None for n in names):
+        images = []
+        for row, name in enumerate(names):
+            if name is None or not (images_dir / name).is_file():
+                raise LayoutError(
+                    f"{pose_file}: pose {row} names image {name!r}, which is not in {images_dir}"
+                )
+            images.append(images_dir / name)
+        unposed = sorted({p.name for p in on_disk} - {p.name for p in images})
+        if unposed:
+            raise LayoutError(
+                f"{images_dir}: images without poses in {pose_file}: {', '.join(unposed[:5])}"
+                + (f" and {len(unposed) - 5} more" if len(unposed) > 5 else "")
+            )
+    elif len(on_disk) != len(values):
+        raise LayoutError(
+            f"{images_dir} has {len(on_disk)} images but {pose_file} {len(values)} poses (and no 'image' "
+            "column to match them by name)"
+        )
+    else:
+        images = on_disk
+    poses_from_values(values, convention, str(pose_file))  # the numbers must read in the convention
+    return LayoutFrames(images, _depths(images, depth_dir), values, convention)
+
+
+def _depths(images: list[Path], depth_dir: str | Path | None) -> list[Path | None]:
+    """The depth image of each image (same stem, .png) in depth_dir, or None without depth_dir."""
+    if depth_dir is None:
+        return [None] * len(images)
+    depth_dir = Path(depth_dir)
+    depths = [depth_dir / f"{image.stem}.png" for image in images]
+    missing = [d.name for d in depths if not d.is_file()]
+    if missing:
+        raise LayoutError(f"{depth_dir}: no depth image for {', '.join(missing[:5])}")
+    return depths
+
+
+def write_folder(
+    out_dir: str | Path, rgb_pngs: list[bytes], T_base_flange: np.ndarray, convention: PoseConvention
+) -> Path:
+    """images/NNNNNN.png and poses.csv (with an image column) in a convention: the folder layout."""
+    out_dir = Path(out_dir)
+    (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    lines = ["image," + ",".join(f"v{k}" for k in range(convention.values_per_pose))]
+    for i, (png, values) in enumerate(
+        zip(rgb_pngs, values_from_poses(T_base_flange, convention), strict=True)
+    ):
+        name = f"{i:06d}.png"
+        write_atomic(out_dir / "images" / name, png)
+        lines.append(name + "," + ",".join(repr(float(v)) for v in values))
+    write_atomic(out_dir / "poses.csv", "\n".join(lines) + "\n")
+    return out_dir
+
+
+def read_visp(folder: str | Path) -> LayoutFrames:
+    """ViSP's hand-eye layout (module doc)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise LayoutError(f"{folder}: no such folder")
+    numbered = sorted(
+        (int(m.group(1)), p) for p in folder.iterdir() if (m := _VISP_POSE.match(p.name)) is not None
+    )
+    if not numbered:
+        raise LayoutError(f"{folder}: no pose_fPe_N.yaml files (ViSP's hand-eye layout)")
+    images, values = [], []
+    for n, pose_path in numbered:
+        image = folder / f"image-{n}.png"
+        if not image.is_file():
+            raise LayoutError(f"{pose_path}: its image {image.name} is missing")
+        images.append(image)
+        values.append(_visp_pose(pose_path))
+    poses = {n for n, _ in numbered}
+    unposed = sorted(p.name for p in folder.glob("image-*.png") if int(p.stem.split("-")[1]) not in poses)
+    if unposed:
+        raise LayoutError(f"{folder}: images without a pose_fPe file: {', '.join(unposed[:5])}")
+    return LayoutFrames(images, [None] * len(images), np.array(values), VISP_CONVENTION)
+
+
+def _visp_pose(path: Path) -> list[float]:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise LayoutError(f"{path}: not YAML ({exc})") from None
+    if not isinstance(data, dict) or data.get("rows") != 6 or data.get("cols") != 1:
+        raise LayoutError(f"{path}: expected a vpPoseVector: 'rows: 6', 'cols: 1' and 'data'")
+    entries = data.get("data")
+    try:
+        values = [float(np.ravel(e)[0]) for e in entries]
+    except (TypeError, ValueError, IndexError):
+        values = []
+    if len(values) != 6:
+        raise LayoutError(
+            f"{path}: field 'data' should hold 6 numbers (tx ty tz tux tuy tuz), got {entries!r}"
+        )
+    return values
+
+
+def write_visp(out_dir: str | Path, rgb_pngs: list[bytes], T_base_flange: np.ndarray) -> Path:
+    """image-N.png and pose_fPe_N.yaml (N from 1): ViSP's hand-eye layout."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for n, (png, values) in enumerate(
+        zip(rgb_pngs, values_from_poses(T_base_flange, VISP_CONVENTION), strict=True), start=1
+    ):
+        write_atomic(out_dir / f"image-{n}.png", png)
+        rows = "".join(f"  - [{float(v)!r}]\n" for v in values)
+        write_atomic(out_dir / f"pose_fPe_{n}.yaml", f"rows: 6\ncols: 1\ndata:\n{rows}")
+    return out_dir
+
+
+def read_easy_handeye_samples(path: str | Path) -> list[PosePair]:
+    """The pose pairs of an easy_handeye2 .samples file (module doc), frames numbered from 0."""
+    path = Path(path)
+    if not path.is_file():
+        raise LayoutError(f"{path}: samples file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise LayoutError(f"{path}: not YAML ({exc})") from None
+    samples = data.get("samples") if isinstance(data, dict) else None
+    if not isinstance(samples, list) or not samples:
+        raise LayoutError(f"{path}: field 'samples' should be a non-empty list of {{robot, tracking}}")
+    pairs = []
+    for i, sample in enumerate(samples):
+        where = f"{path}: samples[{i}]"
+        if not isinstance(sample, dict):
+            raise LayoutError(f"{where}: expected {{robot, tracking}}")
+        pairs.append(
+            PosePair(
+                i,
+                _ros_transform(sample.get("robot"), f"{where}.robot"),
+                _ros_transform(sample.get("tracking"), f"{where}.tracking"),
+            )
+        )
+    return pairs
+
+
+def _ros_transform(value: object, where: str) -> np.ndarray:
+    """(4, 4) of a geometry_msgs/Transform as YAML: translation {x, y, z}, rotation {x, y, z, w}."""
+    try:
+        t = [float(value["translation"][k]) for k in "xyz"]
+        q = [float(value["rotation"][k]) for k in "xyzw"]
+    except (TypeError, KeyError, ValueError):
+        raise LayoutError(
+            f"{where}: expected translation {{x, y, z}} and rotation {{x, y, z, w}}, got {value!r}"
+        ) from None
+    norm = float(np.linalg.norm(q))
+    if not np.all(np.isfinite(t)) or abs(norm - 1.0) > 1e-3:
+        raise LayoutError(f"{where}: rotation quaternion has norm {norm:.4g}, not 1")
+    return make_transform(Rotation.from_quat(q).as_matrix(), np.array(t))
+
+
+def write_easy_handeye_samples(path: str | Path, pairs: list[PosePair]) -> Path:
+    """An easy_handeye2 .samples file of pose pairs (robot T_base_flange, tracking T_cam_board)."""
+
+    def transform(T: np.ndarray) -> dict:
+        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+        return {
+            "translation": dict(zip("xyz", map(float, T[:3, 3]), strict=True)),
+            "rotation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)},
+        }
+
+    samples = [{"robot": transform(p.T_base_flange), "tracking": transform(p.T_cam_board)} for p in pairs]
+    return write_atomic(Path(path), yaml.safe_dump({"samples": samples}, sort_keys=False))

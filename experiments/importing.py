@@ -1,0 +1,154 @@
+"""`hec import LAYOUT SOURCE --out DIR`: a hec dataset from another tool's layout
+(estimator.io.layouts): an image folder with a pose file, ViSP's hand-eye folder, or an
+easy_handeye2 .samples file of pose pairs. Image imports are detected at once (the observations
+cached as `hec detect` would) and the robot poses' convention is checked: if a common mistake fits
+the data much better than the stated convention, hec says which and the option that selects it."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from estimator.geometry.camera import CameraIntrinsics
+from estimator.io.dataset import load_dataset
+from estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
+from estimator.io.layouts import LayoutError, read_easy_handeye_samples, read_folder, read_visp
+from estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
+from estimator.targets.kinds import find_board
+from experiments import arguments
+
+LAYOUTS = ("folder", "visp", "easy_handeye2")
+IMPORT_ERRORS = (LayoutError, PoseFileError, IntrinsicsFileError)
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "import",
+        help="write a hec dataset from an image folder and pose file, ViSP's layout or easy_handeye2 samples",
+    )
+    p.add_argument("layout", choices=LAYOUTS, help="the source's layout")
+    p.add_argument("source", type=Path, help="image folder (folder, visp) or .samples file (easy_handeye2)")
+    p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
+    p.add_argument("--force", action="store_true", help="replace --out if it exists")
+    p.add_argument("--board", help="board name in models/boards/ or a board file (required with images)")
+    p.add_argument("--intrinsics", type=Path, help="OpenCV FileStorage YAML/JSON or ROS camera_info YAML")
+    p.add_argument(
+        "--camera",
+        type=float,
+        nargs=6,
+        metavar=("FX", "FY", "CX", "CY", "WIDTH", "HEIGHT"),
+        help="intrinsics as numbers instead of --intrinsics (pixels; no distortion)",
+    )
+    p.add_argument("--poses", type=Path, help="folder layout: the pose file (CSV with a header, or JSON)")
+    p.add_argument("--rotation", default="quat-wxyz", choices=ROTATIONS, help="default: %(default)s")
+    p.add_argument("--angle-unit", default="rad", choices=("rad", "deg"), help="default: %(default)s")
+    p.add_argument("--length-unit", default="m", choices=("m", "mm"), help="default: %(default)s")
+    p.add_argument(
+        "--pose-direction", default="base-to-flange", choices=DIRECTIONS, help="default: %(default)s"
+    )
+    p.add_argument("--depth", type=Path, help="folder layout: 16-bit depth PNGs named as the images")
+    p.add_argument(
+        "--depth-scale", type=arguments.positive, default=0.001, help="metres per depth unit (default 0.001)"
+    )
+    p.add_argument("--robot-model", choices=("ur5", "ur5e"), help="the arm, recorded in dataset.json")
+    p.add_argument("--no-check", action="store_true", help="skip detection and the convention check")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Import, then (image layouts) detect and check the pose convention; prints what it did."""
+    from estimator.io.importer import import_images, import_pose_pairs, provenance
+
+    try:
+        if args.layout == "easy_handeye2":
+            pairs = read_easy_handeye_samples(args.source)
+            board = find_board(args.board) if args.board else None
+            intrinsics = _intrinsics(args, required=False)
+            out = import_pose_pairs(
+                pairs, args.out, provenance(args.layout, [args.source]), board, intrinsics, args.force
+            )
+            print(f"imported {len(pairs)} pose pairs (robot T_base_flange, tracking T_cam_board) into {out}")
+            print("observations: pose_pairs.json (imported; nothing regenerates them)")
+            return 0
+        if args.board is None:
+            raise ValueError("--board is needed to import images: the board name or file they show")
+        board = find_board(args.board)
+        intrinsics = _intrinsics(args, required=True)
+        if args.layout == "folder":
+            if args.poses is None:
+                raise ValueError("--poses is needed with the folder layout")
+            frames = read_folder(args.source, args.poses, _convention(args), args.depth)
+            sources = [args.source, args.poses] + ([args.depth] if args.depth else [])
+        else:
+            frames = read_visp(args.source)
+            sources = [args.source]
+        extra = {"robot_model": args.robot_model} if args.robot_model else {}
+        out = import_images(
+            frames,
+            args.out,
+            board,
+            intrinsics,
+            args.depth_scale,
+            provenance(args.layout, sources, frames),
+            extra,
+            args.force,
+        )
+    except IMPORT_ERRORS as exc:
+        raise ValueError(str(exc)) from None
+    depth = sum(d is not None for d in frames.depths)
+    print(
+        f"imported {len(frames.images)} images ({depth} with depth) with robot poses read as "
+        f"{_describe(frames.convention)} into {out}"
+    )
+    if not args.no_check:
+        for line in check_import(out, args.quiet):
+            print(line)
+    return 0
+
+
+def _convention(args: argparse.Namespace) -> PoseConvention:
+    return PoseConvention(args.rotation, args.angle_unit, args.length_unit, args.pose_direction)
+
+
+def _describe(convention: PoseConvention) -> str:
+    c = convention
+    angles = "" if c.rotation.startswith("quat") or c.rotation == "matrix" else f" in {c.angle_unit}"
+    return f"{c.rotation}{angles}, {c.length_unit}, {c.direction}"
+
+
+def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | None:
+    if args.intrinsics is not None and args.camera is not None:
+        raise ValueError("give --intrinsics or --camera, not both")
+    if args.intrinsics is not None:
+        return read_intrinsics(args.intrinsics)
+    if args.camera is not None:
+        fx, fy, cx, cy, width, height = args.camera
+        if width != int(width) or height != int(height):
+            raise ValueError(f"--camera: WIDTH and HEIGHT are whole pixels, got {width:g} {height:g}")
+        return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
+    if required:
+        raise ValueError("the camera is needed to import images: give --intrinsics FILE or --camera")
+    return None
+
+
+def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
+    """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention:
+    the lines to print."""
+    from estimator.solve.convention_check import check_pose_convention
+    from estimator.solve.problem import build_problem, dataset_robot_noise
+    from estimator.targets.qr import DetectorSettings
+    from experiments.detection import detect_and_cache
+
+    dataset = load_dataset(dataset_path)
+    observations, cache, _ = detect_and_cache(dataset, DetectorSettings(), quiet)
+    found = sum(o.problem is None for o in observations)
+    points = sum(len(m.corners_px) for o in observations for m in o.markers)
+    lines = [
+        f"detected the board in {found} of {len(observations)} frames ({points} points); cached in {cache}"
+    ]
+    record = dataset.metadata["provenance"]
+    stated = PoseConvention(**record["pose_convention"])
+    problem = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
+    report = check_pose_convention(problem, record["pose_values"], stated)
+    lines.append(f"convention check: {report.message}")
+    return lines

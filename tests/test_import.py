@@ -1,0 +1,216 @@
+"""hec import: a rendered dataset written out in each layout and imported back calibrates the same,
+the convention check names each mistake made on the way in (and none on a correct import), and bad
+sources are errors that name the file and the field."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimator.io.dataset import DatasetWriter, load_dataset
+from estimator.io.intrinsics_file import write_opencv_intrinsics
+from estimator.io.layouts import (
+    LayoutError,
+    read_easy_handeye_samples,
+    read_folder,
+    write_easy_handeye_samples,
+    write_folder,
+    write_visp,
+)
+from estimator.io.pose_file import PoseConvention
+from estimator.observe.observations import observe_dataset
+from estimator.observe.pose_pairs import PosePair, read_pose_pairs
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.methods import solve
+from estimator.solve.problem import build_problem, dataset_robot_noise
+from experiments.cli import main
+
+CONVENTION = PoseConvention("euler-xyz", "deg", "mm", "flange-to-base")
+
+
+@pytest.fixture(scope="module")
+def exported(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The default rendered dataset without its depth (what the layouts hold), and it written out
+    as an image folder with poses in CONVENTION, as ViSP's layout, and its camera as OpenCV YAML."""
+    root = tmp_path_factory.mktemp("exported")
+    source = load_dataset(default_dataset)
+    with DatasetWriter(
+        root / "reference", source.intrinsics, source.board, source.depth_scale_m, "sim"
+    ) as writer:
+        for i in range(len(source)):
+            writer.add_frame(replace(source.frame(i), depth_m=None))
+        reference = writer.finish()
+    pngs = [(source.root / row["rgb"]).read_bytes() for row in source.rows]
+    T_base_flange = np.array([row["T_base_flange"] for row in source.rows])
+    return {
+        "reference": reference,
+        "folder": write_folder(root / "folder", pngs, T_base_flange, CONVENTION),
+        "visp": write_visp(root / "visp", pngs, T_base_flange),
+        "camera": write_opencv_intrinsics(root / "camera.yaml", source.intrinsics),
+    }
+
+
+def _calibrate(path: Path, method: str) -> np.ndarray:
+    dataset = load_dataset(path)
+    observations = observe_dataset(dataset)
+    problem = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
+    return solve(method, problem, MethodOptions(), observations).T_flange_cam
+
+
+def _import(exported: dict[str, Path], out: Path, layout: str, *options: str) -> list[str]:
+    source = exported[layout] / "images" if layout == "folder" else exported[layout]
+    argv = ["import", layout, str(source), "--out", str(out), "--board", "hec_8qr"]
+    argv += ["--intrinsics", str(exported["camera"]), "--quiet", *options]
+    if layout == "folder":
+        argv += ["--poses", str(exported["folder"] / "poses.csv")]
+    return argv
+
+
+FOLDER_OPTIONS = ("--rotation", "euler-xyz", "--angle-unit", "deg", "--length-unit", "mm")
+
+
+@pytest.mark.parametrize("layout", ["folder", "visp"])
+def test_an_exported_dataset_imports_back_to_the_same_calibration(exported, tmp_path, capsys, layout) -> None:
+    options = (*FOLDER_OPTIONS, "--pose-direction", "flange-to-base") if layout == "folder" else ()
+    assert main(_import(exported, tmp_path / "imported", layout, *options)) == 0
+    out = capsys.readouterr().out
+    assert "imported 17 images (0 with depth)" in out
+    assert "convention check: the robot poses fit the stated convention" in out
+    provenance = load_dataset(tmp_path / "imported").metadata["provenance"]
+    assert provenance["layout"] == layout and len(provenance["pose_values"]) == 17
+    for method in ("ekf", "opencv-park"):
+        expected = _calibrate(exported["reference"], method)
+        np.testing.assert_allclose(_calibrate(tmp_path / "imported", method), expected, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        ((*FOLDER_OPTIONS, "--pose-direction", "base-to-flange"), "--pose-direction flange-to-base"),
+        (
+            (
+                "--rotation",
+                "rotvec",
+                "--angle-unit",
+                "deg",
+                "--length-unit",
+                "mm",
+                "--pose-direction",
+                "flange-to-base",
+            ),
+            "--rotation euler-xyz",
+        ),
+        (
+            (
+                "--rotation",
+                "euler-xyz",
+                "--angle-unit",
+                "rad",
+                "--length-unit",
+                "mm",
+                "--pose-direction",
+                "flange-to-base",
+            ),
+            "--angle-unit deg",
+        ),
+        (
+            (
+                "--rotation",
+                "euler-xyz",
+                "--angle-unit",
+                "deg",
+                "--length-unit",
+                "m",
+                "--pose-direction",
+                "flange-to-base",
+            ),
+            "--length-unit mm",
+        ),
+    ],
+)
+def test_each_convention_mistake_is_named_on_import(exported, tmp_path, capsys, options, named) -> None:
+    assert main(_import(exported, tmp_path / "imported", "folder", *options)) == 0
+    out = capsys.readouterr().out
+    assert "convention check: the robot poses look like" in out and f"pass {named}" in out
+
+
+def test_pose_pairs_import_back_as_written(tmp_path, capsys) -> None:
+    rng = np.random.default_rng(2)
+    from scipy.spatial.transform import Rotation
+
+    from estimator.geometry.transforms import make_transform
+
+    pairs = [
+        PosePair(
+            i,
+            *(
+                make_transform(Rotation.random(random_state=rng).as_matrix(), rng.normal(size=3))
+                for _ in range(2)
+            ),
+        )
+        for i in range(6)
+    ]
+    samples = write_easy_handeye_samples(tmp_path / "cell.samples", pairs)
+    assert main(["import", "easy_handeye2", str(samples), "--out", str(tmp_path / "pairs")]) == 0
+    assert "imported 6 pose pairs" in capsys.readouterr().out
+    read, source = read_pose_pairs(tmp_path / "pairs" / "pose_pairs.json")
+    assert source["layout"] == "easy_handeye2"
+    for a, b in zip(pairs, read, strict=True):
+        np.testing.assert_allclose(b.T_base_flange, a.T_base_flange, atol=1e-9)
+        np.testing.assert_allclose(b.T_cam_board, a.T_cam_board, atol=1e-9)
+    dataset = load_dataset(tmp_path / "pairs")
+    assert dataset.intrinsics is None and dataset.board is None and len(dataset) == 6
+    np.testing.assert_allclose(dataset.rows[3]["T_base_flange"], pairs[3].T_base_flange, atol=1e-9)
+
+
+def test_bad_sources_name_the_file_and_the_field(exported, tmp_path) -> None:
+    images = exported["folder"] / "images"
+    poses = tmp_path / "poses.csv"
+    lines = (exported["folder"] / "poses.csv").read_text().splitlines()
+    poses.write_text("\n".join(lines[:-1]) + "\n")  # the last image has no pose
+    with pytest.raises(LayoutError, match=r"images without poses in .*poses.csv: 000016.png"):
+        read_folder(images, poses, CONVENTION)
+    poses.write_text("\n".join([lines[0], lines[1].replace("000000.png", "missing.png")]) + "\n")
+    with pytest.raises(LayoutError, match="pose 0 names image 'missing.png', which is not in"):
+        read_folder(images, poses, CONVENTION)
+    unnamed = tmp_path / "unnamed.csv"
+    unnamed.write_text("\n".join(line.split(",", 1)[1] for line in lines[:5]) + "\n")
+    with pytest.raises(LayoutError, match="has 17 images but .*unnamed.csv 4 poses"):
+        read_folder(images, unnamed, CONVENTION)
+    samples = tmp_path / "bad.samples"
+    samples.write_text("samples:\n- robot: {translation: {x: 0, y: 0, z: 0}}\n")
+    with pytest.raises(LayoutError, match=r"bad.samples: samples\[0\].robot: expected translation"):
+        read_easy_handeye_samples(samples)
+    (tmp_path / "visp").mkdir()
+    (tmp_path / "visp" / "pose_fPe_1.yaml").write_text("rows: 6\ncols: 1\ndata:\n  - [0.1]\n")
+    (tmp_path / "visp" / "image-1.png").write_bytes((exported["visp"] / "image-1.png").read_bytes())
+    assert (
+        main(
+            [
+                "import",
+                "visp",
+                str(tmp_path / "visp"),
+                "--out",
+                str(tmp_path / "x"),
+                "--board",
+                "hec_8qr",
+                "--intrinsics",
+                str(exported["camera"]),
+            ]
+        )
+        == 2
+    )
+    assert not (tmp_path / "x").exists()
+
+
+def test_import_without_camera_or_board_is_refused(exported, tmp_path, capsys) -> None:
+    argv = _import(exported, tmp_path / "x", "visp")
+    without_camera = argv[: argv.index("--intrinsics")] + ["--quiet"]
+    assert main(without_camera) == 2
+    assert "give --intrinsics FILE or --camera" in capsys.readouterr().err
+    without_board = [a for a in argv if a not in ("--board", "hec_8qr")]
+    assert main(without_board) == 2
+    assert "--board is needed to import images" in capsys.readouterr().err
