@@ -74,7 +74,7 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--method",
         default=DEFAULT_METHOD,
-        choices=[*METHODS, "all"],
+        choices=[*METHODS, "all"],  # pose-pair datasets take ekf, iekf, batch and the OpenCV ones
         metavar="NAME|all",
         help=f"{', '.join(METHODS)}, or all to compare them (default: %(default)s)",
     )

@@ -137,8 +137,14 @@ def overlay_writer(dataset: Dataset) -> Callable[[FrameObservations, Frame | Non
 def run_detect(
     dataset_path: Path, overlay: bool = False, passes: tuple[str, ...] = DEFAULT_PASSES, quiet: bool = False
 ) -> list[FrameObservations]:
-    """Detect every frame, write DATASET/detections.json (and overlays), print the per-frame table."""
+    """Detect every frame, write DATASET/detections.json (and overlays), print the per-frame table.
+    A dataset of imported pose pairs has no images: ValueError, its pairs are its observations."""
     dataset = load_dataset(dataset_path)
+    if dataset.metadata.get("pose_pairs_file"):
+        raise ValueError(
+            f"{dataset.root} holds imported pose pairs ({dataset.metadata['pose_pairs_file']}) and no "
+            "images: there is nothing to detect; `hec calibrate` uses the pairs as they are"
+        )
     settings = DetectorSettings(passes=passes)
     overlay_dir = dataset.root / OVERLAY_DIR
     start = time.perf_counter()

@@ -248,6 +248,10 @@ def calibrate_dataset(
     dataset = load_dataset(dataset_path)
     options = method_options(settings)
     noise, noise_source = robot_noise(dataset, settings.robot_sigma_mm, settings.robot_sigma_deg)
+    if dataset.metadata.get("pose_pairs_file"):
+        from experiments.calibrate.pose_pairs import calibrate_pose_pairs
+
+        return calibrate_pose_pairs(dataset, settings.method, options, noise, noise_source, json_out)
     source = "as just detected"
     if observations is None:
         observations, source = cached_or_detected(dataset, quiet)

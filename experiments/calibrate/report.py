@@ -156,6 +156,12 @@ def _format_uncertainty(cal: Calibration) -> list[str]:
 
 
 def _format_residuals(cal: Calibration) -> list[str]:
+    if "pose_pair_rms" in cal.diagnostics:  # calibrated from pose pairs: no pixels
+        t, r = cal.diagnostics["pose_pair_rms"]
+        return [
+            f"residuals of the board poses (at the reported flange poses): RMS {1e3 * t:.3f} mm, "
+            f"{np.degrees(r):.4f} deg"
+        ]
     depth = cal.residual_depth_rms_mm
     depth_text = "no depth" if depth is None else f"depth RMS {depth:.3f} mm"
     frames = ", ".join(f"{f} ({v:.3f} px)" for f, v in _worst_frames(cal)) or "-"
@@ -184,6 +190,8 @@ def chi2_dof(cal: Calibration) -> float | None:
 def _format_noise(cal: Calibration) -> list[str]:
     """The noise levels learned from the data beside the declared ones, and the goodness of fit."""
     noise = cal.diagnostics.get("noise")
+    if "learned_pose_sigma" in cal.diagnostics:  # pose pairs: the warning gives the learned levels
+        return []
     if noise is None:
         return ["noise: as declared (not learned from the data)"]
     learnt, declared = noise.learned, noise.declared

@@ -1,0 +1,268 @@
+"""Calibrating from pose pairs (estimator.observe.pose_pairs): a robot pose A_i = T_base_flange and
+the board pose Z_i = T_cam_board another tool measured, without images.
+
+The OpenCV methods take the pairs as they are (cv2.calibrateHandEye: gripper2base = A_i,
+target2cam = Z_i). hec's methods use the pose-pair measurement model: the state is the mount
+X = T_flange_cam and the board B = T_base_board, fixed in the base frame; each pair measures
+
+    Z_i = P_i(X, B) = inv(X) inv(A_i) B,   r_i = pose_minus(Z_i, P_i)   (6,)
+
+in the perturbation convention of estimator.geometry.lie, with the covariance of Z_i (the pair's,
+or learned) plus the reported flange pose's noise carried through. ``batch`` is the Gauss-Newton
+optimum over all pairs; ``ekf`` and ``iekf`` fuse the pairs one at a time (iekf iterating each
+update) from the Park solution with a wide prior. When the pairs carry no covariance (as
+easy_handeye2 writes them), the board pose's noise is learned from the residuals as six variance
+components, one per axis of its perturbation (translation along and rotation about the camera's
+and the board's axes: a PnP pose is far less certain along the line of sight), by Foerstner's
+variance component estimation with the redundancies of the fit, and the result says so.
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from estimator.geometry.lie import pose_minus, pose_plus, skew, so3_right_jacobian_inverse
+from estimator.geometry.transforms import invert, make_transform
+from estimator.observe.pose_pairs import PosePair
+from estimator.solve.baselines import OPENCV_METHODS, ROBOT_WORLD_METHODS
+from estimator.solve.calibration import Calibration, MethodOptions
+from estimator.solve.initialise import MIN_AXIS_SPREAD, mean_pose, rotation_spread
+from estimator.solve.problem import MIN_FRAMES, CalibrationInputError, RobotPoseNoise
+
+POSE_PAIR_MODEL_METHODS = ("ekf", "iekf", "batch")
+# A robot that reports its pose exactly (for pairs whose board poses carry all the noise).
+PAIR_NOISE_FREE = RobotPoseNoise(0.0, 0.0)
+# The board pose noise learning starts from these (a PnP pose at half a metre) and stops when a
+# component changes by less than this factor.
+START_SIGMAS = np.array([1e-3] * 3 + [np.radians(0.1)] * 3)
+VCE_TOLERANCE = 1e-4
+VCE_ITERATIONS = 50
+GN_ITERATIONS = 50
+# The filters' prior around the Park solution: wide, it adds no information.
+FILTER_PRIOR_SIGMA = (0.1, 0.5)  # metres, radians
+
+
+def solve_pose_pairs(
+    name: str, pairs: list[PosePair], options: MethodOptions, robot_noise: RobotPoseNoise | None = None
+) -> Calibration:
+    """T_flange_cam from pose pairs with one method (module doc): an OpenCV name of
+    baselines.OPENCV_METHODS or one of POSE_PAIR_MODEL_METHODS. options: its prior (if any) is
+    fused by hec's methods. CalibrationInputError for too few pairs or motions without two rotation
+    axes."""
+    if name not in OPENCV_METHODS and name not in POSE_PAIR_MODEL_METHODS:
+        raise ValueError(
+            f"method {name!r} cannot use pose pairs; choose one of "
+            f"{', '.join([*POSE_PAIR_MODEL_METHODS, *OPENCV_METHODS])}"
+        )
+    if len(pairs) < MIN_FRAMES:
+        raise CalibrationInputError(f"too few pose pairs: {len(pairs)} (at least {MIN_FRAMES} needed)")
+    A = np.array([p.T_base_flange for p in pairs])
+    if rotation_spread(list(A))[1] < MIN_AXIS_SPREAD:
+        raise CalibrationInputError(
+            "the robot's rotations between the pairs do not span two axes: the mount cannot be determined "
+            "(rotate the flange about at least two different axes between samples)"
+        )
+    start = time.perf_counter()
+    X, B = opencv_pose_pairs(pairs, name if name in OPENCV_METHODS else "opencv-park")
+    if name in OPENCV_METHODS:
+        result = Calibration(name, X, None, B, None, [], len(pairs), 0)
+    else:
+        model = PosePairModel(pairs, robot_noise or RobotPoseNoise())
+        result = model.batch(X, B) if name == "batch" else model.filter(X, B, iterated=name == "iekf")
+        result.method = name
+        if options.prior is not None:
+            result.warnings.append("the prior is not used with pose pairs")
+    result.diagnostics["time_s"] = time.perf_counter() - start
+    result.diagnostics["pose_pair_rms"] = PosePairModel(pairs, PAIR_NOISE_FREE).rms(
+        result.T_flange_cam, result.T_base_board
+    )
+    return result
+
+
+def opencv_pose_pairs(pairs: list[PosePair], method: str) -> tuple[np.ndarray, np.ndarray]:
+    """(T_flange_cam, T_base_board) by an OpenCV method on the pairs; B the mean of A_i X Z_i."""
+    A = [p.T_base_flange for p in pairs]
+    Z = [p.T_cam_board for p in pairs]
+    try:
+        if method in ROBOT_WORLD_METHODS:
+            A_inv = [invert(a) for a in A]
+            R_board_base, t_board_base, R_cam_flange, t_cam_flange = cv2.calibrateRobotWorldHandEye(
+                [z[:3, :3] for z in Z],
+                [z[:3, 3] for z in Z],
+                [a[:3, :3] for a in A_inv],
+                [a[:3, 3] for a in A_inv],
+                method=OPENCV_METHODS[method],
+            )
+            X = invert(make_transform(R_cam_flange, t_cam_flange.ravel()))
+        else:
+            R, t = cv2.calibrateHandEye(
+                [a[:3, :3] for a in A],
+                [a[:3, 3] for a in A],
+                [z[:3, :3] for z in Z],
+                [z[:3, 3] for z in Z],
+                method=OPENCV_METHODS[method],
+            )
+            X = make_transform(R, t.ravel())
+    except cv2.error as exc:
+        raise CalibrationInputError(
+            f"{method} found no solution ({str(exc).strip().splitlines()[-1]})"
+        ) from None
+    if not np.all(np.isfinite(X)):
+        raise CalibrationInputError(f"{method} found no solution (non-finite result)")
+    return X, mean_pose([a @ X @ z for a, z in zip(A, Z, strict=True)])
+
+
+class PosePairModel:
+    """The measurement model of the module doc over a list of pairs."""
+
+    def __init__(self, pairs: list[PosePair], robot_noise: RobotPoseNoise) -> None:
+        self.pairs = pairs
+        self.robot_cov = np.diag(
+            [robot_noise.translation_sigma_m**2] * 3 + [robot_noise.rotation_sigma_rad**2] * 3
+        )
+
+    def residual(self, X: np.ndarray, B: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """r_i (6,), its Jacobian (6, 12) with respect to the perturbations of (X, B), and with
+        respect to the perturbation of A_i (6, 6)."""
+        pair = self.pairs[i]
+        A = pair.T_base_flange
+        C = invert(X) @ invert(A)  # base -> camera
+        P = C @ B
+        r = pose_minus(pair.T_cam_board, P)
+        R_X, R_A, R_P = X[:3, :3], A[:3, :3], P[:3, :3]
+        Q = invert(A) @ B  # the board in the flange frame
+        # d(perturbation of P) / d(perturbations), rows (dt_P, dtheta_P).
+        dP = np.zeros((6, 18))
+        dP[:3, 0:3] = -R_X.T  # dt_X
+        dP[:3, 3:6] = skew(P[:3, 3])  # dtheta_X
+        dP[3:, 3:6] = -R_P.T
+        dP[:3, 6:9] = C[:3, :3]  # dt_B
+        dP[3:, 9:12] = np.eye(3)  # dtheta_B
+        dP[:3, 12:15] = -R_X.T @ R_A.T  # dt_A
+        dP[:3, 15:18] = R_X.T @ skew(Q[:3, 3])  # dtheta_A
+        dP[3:, 15:18] = -Q[:3, :3].T
+        # d r / d(perturbation of P): translation -I; rotation -J_r^-1(-e) (residual e = r[3:]).
+        dr = np.zeros((6, 6))
+        dr[:3, :3] = -np.eye(3)
+        dr[3:, 3:] = -so3_right_jacobian_inverse(-r[3:])
+        J = dr @ dP
+        return r, J[:, :12], J[:, 12:]
+
+    def stacked(self, X: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residuals (N, 6), state Jacobians (N, 6, 12) and robot-pose Jacobians (N, 6, 6)."""
+        parts = [self.residual(X, B, i) for i in range(len(self.pairs))]
+        return tuple(np.array(p) for p in zip(*parts, strict=True))
+
+    def measurement_covariances(
+        self, J_A: np.ndarray, levels: np.ndarray | None, indices: list[int] | None = None
+    ) -> np.ndarray:
+        """(n, 6, 6): the board pose covariance of the pairs at indices (default all; their own, or
+        diag(levels^2), levels (6,) the sigmas per axis) plus the robot pose noise carried through
+        J_A (n, 6, 6)."""
+        pairs = self.pairs if indices is None else [self.pairs[i] for i in indices]
+        own = [p.covariance if levels is None else np.diag(np.square(levels)) for p in pairs]
+        return np.array(own) + J_A @ self.robot_cov @ np.swapaxes(J_A, 1, 2)
+
+    def rms(self, X: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+        """RMS translation (metres) and rotation (radians) of the residuals."""
+        r = self.stacked(X, B)[0]
+        return float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1)))), float(
+            np.sqrt(np.mean(np.sum(r[:, 3:] ** 2, axis=1)))
+        )
+
+    def _gauss_newton(
+        self, X: np.ndarray, B: np.ndarray, levels: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """(X, B, information (12, 12), iterations) at the optimum for these noise levels."""
+        iterations = 0
+        while iterations < GN_ITERATIONS:
+            iterations += 1
+            r, J, J_A = self.stacked(X, B)
+            W = np.linalg.inv(self.measurement_covariances(J_A, levels))
+            H = np.einsum("nji,njk,nkl->il", J, W, J)
+            g = np.einsum("nji,njk,nk->i", J, W, r)
+            step = -np.linalg.solve(H, g)
+            X, B = pose_plus(X, step[:6]), pose_plus(B, step[6:])
+            if np.max(np.abs(step)) < 1e-12:
+                break
+        return X, B, H, iterations
+
+    def batch(self, X: np.ndarray, B: np.ndarray) -> Calibration:
+        """The optimum over all pairs (module doc), learning the board pose noise when the pairs
+        have no covariance."""
+        learn = any(p.covariance is None for p in self.pairs)
+        levels = START_SIGMAS if learn else None
+        for _ in range(VCE_ITERATIONS if learn else 1):
+            X, B, H, iterations = self._gauss_newton(X, B, levels)
+            if not learn:
+                break
+            updated = self._learned_levels(X, B, H, levels)
+            done = np.all(np.abs(updated / levels - 1.0) < VCE_TOLERANCE)
+            levels = updated
+            if done:
+                break
+        if learn:
+            X, B, H, iterations = self._gauss_newton(X, B, levels)
+        result = Calibration("batch", X, np.linalg.inv(H)[:6, :6], B, None, [], len(self.pairs), 0)
+        result.diagnostics["iterations"] = iterations
+        self._note_noise(result, levels)
+        return result
+
+    def _learned_levels(self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray) -> np.ndarray:
+        """Foerstner's variance component update of the per-axis sigmas levels (6,): each component's
+        weighted squared residuals over its redundancy."""
+        r, J, J_A = self.stacked(X, B)
+        covs = self.measurement_covariances(J_A, levels)
+        W = np.linalg.inv(covs)
+        H_inv = np.linalg.inv(H)
+        out = []
+        for k, sigma in enumerate(levels):
+            part = np.zeros(6)
+            part[k] = sigma**2
+            W_k = W @ (part[:, None] * np.eye(6)) @ W  # d(inverse covariance) direction of component k
+            weighted = float(np.einsum("ni,nij,nj->", r, W_k, r))
+            redundancy = float(np.einsum("nij,nji->", W_k, covs)) - float(
+                np.trace(H_inv @ np.einsum("nji,njk,nkl->il", J, W_k, J))
+            )
+            out.append(sigma * np.sqrt(max(weighted, 1e-30) / max(redundancy, 1e-12)))
+        return np.array(out)
+
+    def _note_noise(self, result: Calibration, levels: np.ndarray | None) -> None:
+        if levels is None:
+            return
+        result.diagnostics["learned_pose_sigma"] = levels
+        mm = " ".join(f"{v:.3f}" for v in 1e3 * levels[:3])
+        deg = " ".join(f"{v:.4f}" for v in np.degrees(levels[3:]))
+        result.warnings.append(
+            f"the pairs give no covariance for the board pose: its noise was learned from the data, 1 sigma "
+            f"[mm] along the camera's x y z {mm}, [deg] about the board's x y z {deg}"
+        )
+
+    def filter(self, X: np.ndarray, B: np.ndarray, iterated: bool) -> Calibration:
+        """The pairs fused one at a time (module doc), at the noise levels batch learns (or the
+        pairs' own covariances)."""
+        learn = any(p.covariance is None for p in self.pairs)
+        levels = self.batch(X, B).diagnostics.get("learned_pose_sigma") if learn else None
+        state_cov = np.diag([FILTER_PRIOR_SIGMA[0] ** 2] * 3 + [FILTER_PRIOR_SIGMA[1] ** 2] * 3)
+        P = np.zeros((12, 12))
+        P[:6, :6] = P[6:, 6:] = state_cov
+        for i in range(len(self.pairs)):
+            X0, B0 = X, B
+            for _ in range(10 if iterated else 1):
+                r, J, J_A = self.residual(X, B, i)
+                R = self.measurement_covariances(J_A[None], levels, [i])[0]
+                delta_now = np.concatenate([pose_minus(X, X0), pose_minus(B, B0)])
+                innovation = r - J @ delta_now
+                S = J @ P @ J.T + R
+                K = P @ J.T @ np.linalg.inv(S)
+                delta = -K @ innovation
+                X, B = pose_plus(X0, delta[:6]), pose_plus(B0, delta[6:])
+                if not iterated or np.max(np.abs(delta - delta_now)) < 1e-12:
+                    break
+            P = (np.eye(12) - K @ J) @ P
+        result = Calibration("ekf", X, P[:6, :6], B, None, [], len(self.pairs), 0)
+        self._note_noise(result, levels)
+        return result

@@ -1,0 +1,110 @@
+"""Benchmark: calibrating from pose pairs (no images), as easy_handeye2 users do, against the truth.
+
+Each trial renders the default (or another) scenario, detects the board, and turns each frame into a
+pose pair: the reported T_base_flange and T_cam_board solved from the frame's corners by PnP (what
+a pose-pair tool gives, without covariance). Every OpenCV method and hec's pose-pair model (batch,
+ekf, iekf; the board pose's noise learned) then calibrate from the pairs alone. Prints per method
+the median and worst translation and rotation error of T_flange_cam and hec's mean NEES (6 when
+its covariance is honest), and whether hec's batch is at least as accurate as the best OpenCV
+method (median translation).
+
+    .venv/bin/python -m experiments.bench.pose_pairs [--seeds 5] [--scenario realistic]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import math
+
+import numpy as np
+
+import sim  # noqa: F401  (selects the GL backend before mujoco loads)
+from estimator.geometry.lie import pose_nees
+from estimator.geometry.transforms import pose_error
+from estimator.io.dataset import Dataset
+from estimator.observe.pose_pairs import PosePair
+from estimator.solve.baselines import OPENCV_METHODS
+from estimator.solve.calibration import MethodOptions
+from estimator.solve.initialise import board_pose_pnp
+from estimator.solve.pose_pair_methods import POSE_PAIR_MODEL_METHODS, solve_pose_pairs
+from estimator.solve.problem import build_problem, dataset_robot_noise
+from estimator.targets.qr import DetectorSettings
+from experiments.detection import detect_dataset
+from sim.scenario import load_scenario
+from sim.simulate import simulate_in_memory
+
+METHODS = (*POSE_PAIR_MODEL_METHODS, *OPENCV_METHODS)
+
+
+def rendered_pairs(dataset: Dataset) -> list[PosePair]:
+    """Per usable frame of a rendered dataset: its reported flange pose and its PnP board pose."""
+    observations, _ = detect_dataset(dataset, DetectorSettings(), quiet=True)
+    problem = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
+    return [PosePair(f.frame, f.T_base_flange, board_pose_pnp(problem, f)) for f in problem.frames]
+
+
+def trial(scenario: str | None, seed: int) -> dict[str, tuple[float, float, float] | str]:
+    """method -> (translation mm, rotation deg, NEES) or the failure's message."""
+    with contextlib.redirect_stderr(io.StringIO()):
+        dataset = simulate_in_memory(load_scenario(scenario), seed, name=f"pose pairs {seed}")
+    pairs = rendered_pairs(dataset)
+    truth = dataset.ground_truth.T_flange_cam
+    out: dict[str, tuple[float, float, float] | str] = {}
+    for method in METHODS:
+        try:
+            result = solve_pose_pairs(method, pairs, MethodOptions(), dataset_robot_noise(dataset))
+        except Exception as exc:  # noqa: BLE001  (a method's failure is its entry)
+            out[method] = f"{type(exc).__name__}: {exc}"
+            continue
+        error_m, error_rad = pose_error(result.T_flange_cam, truth)
+        nees = (
+            math.nan
+            if result.covariance is None
+            else pose_nees(result.T_flange_cam, truth, result.covariance)
+        )
+        out[method] = (1e3 * error_m, math.degrees(error_rad), nees)
+    return out
+
+
+def table(trials: list[dict]) -> list[str]:
+    """One line per method and the acceptance line."""
+    lines, medians = [], {}
+    for method in METHODS:
+        ok = [t[method] for t in trials if isinstance(t[method], tuple)]
+        if not ok:
+            lines.append(f"  {method:18s} failed: {trials[0][method]}")
+            continue
+        mm, deg, nees = (np.array(v) for v in zip(*ok, strict=True))
+        medians[method] = float(np.median(mm))
+        lines.append(
+            f"  {method:18s} translation median {np.median(mm):.3f} max {mm.max():.3f} mm, rotation median "
+            f"{np.median(deg):.4f} max {deg.max():.4f} deg"
+            + (f", NEES {np.mean(nees):.1f}" if np.isfinite(nees).all() else "")
+            + (f" ({len(trials) - len(ok)} failed)" if len(ok) < len(trials) else "")
+        )
+    best = min((m for m in medians if m in OPENCV_METHODS), key=medians.get)
+    verdict = "yes" if medians.get("batch", math.inf) <= medians[best] else "NO"
+    lines.append(
+        f"  batch at least as accurate as the best OpenCV method ({best}, {medians[best]:.3f} mm): {verdict}"
+    )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seeds", type=int, default=5, help="trials (default 5)")
+    parser.add_argument(
+        "--scenario", help="a scenario file or name in models/scenarios/ (default: the ideal cell)"
+    )
+    args = parser.parse_args(argv)
+    trials = [trial(args.scenario, seed) for seed in range(args.seeds)]
+    print(f"pose pairs from {args.scenario or 'the default'} scenario, {args.seeds} seeds:")
+    print("\n".join(table(trials)))
+
+
+if __name__ == "__main__":
+    main()
