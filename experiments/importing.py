@@ -10,10 +10,13 @@ import argparse
 from pathlib import Path
 
 from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.transforms import invert
 from estimator.io.dataset import load_dataset
 from estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
 from estimator.io.layouts import LayoutError, read_easy_handeye_samples, read_folder, read_visp
 from estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
+from estimator.observe.pose_pairs import PosePair
+from estimator.solve.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
 from estimator.targets.kinds import find_board
 from experiments import arguments
 
@@ -46,6 +49,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--pose-direction", default="base-to-flange", choices=DIRECTIONS, help="default: %(default)s"
     )
+    p.add_argument(
+        "--tracking-direction",
+        default="camera-to-target",
+        choices=TRACKING_DIRECTIONS,
+        help="easy_handeye2: which way the tracking poses map (default: %(default)s, T_cam_board)",
+    )
     p.add_argument("--depth", type=Path, help="folder layout: 16-bit depth PNGs named as the images")
     p.add_argument(
         "--depth-scale", type=arguments.positive, default=0.001, help="metres per depth unit (default 0.001)"
@@ -61,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         if args.layout == "easy_handeye2":
-            pairs = read_easy_handeye_samples(args.source)
+            pairs = _directed(read_easy_handeye_samples(args.source), args)
             board = find_board(args.board) if args.board else None
             intrinsics = _intrinsics(args, required=False)
             out = import_pose_pairs(
@@ -69,6 +78,9 @@ def run(args: argparse.Namespace) -> int:
             )
             print(f"imported {len(pairs)} pose pairs (robot T_base_flange, tracking T_cam_board) into {out}")
             print("observations: pose_pairs.json (imported; nothing regenerates them)")
+            if not args.no_check:
+                check = check_pose_pair_directions(pairs, args.pose_direction, args.tracking_direction)
+                print(f"convention check: {check}")
             return 0
         if args.board is None:
             raise ValueError("--board is needed to import images: the board name or file they show")
@@ -104,6 +116,20 @@ def run(args: argparse.Namespace) -> int:
         for line in check_import(out, args.quiet):
             print(line)
     return 0
+
+
+def _directed(pairs: list[PosePair], args: argparse.Namespace) -> list[PosePair]:
+    """The samples read in the directions the options state: T_base_flange and T_cam_board."""
+    robot = args.pose_direction == "flange-to-base"
+    tracking = args.tracking_direction == "target-to-camera"
+    return [
+        PosePair(
+            p.frame,
+            invert(p.T_base_flange) if robot else p.T_base_flange,
+            invert(p.T_cam_board) if tracking else p.T_cam_board,
+        )
+        for p in pairs
+    ]
 
 
 def _convention(args: argparse.Namespace) -> PoseConvention:

@@ -137,6 +137,16 @@ def test_each_convention_mistake_is_named_on_import(exported, tmp_path, capsys, 
     assert "convention check: the robot poses look like" in out and f"pass {named}" in out
 
 
+def test_calibrate_names_the_convention_mistake_of_a_poor_fit(exported, tmp_path, capsys) -> None:
+    options = (*FOLDER_OPTIONS, "--pose-direction", "base-to-flange", "--no-check")
+    assert main(_import(exported, tmp_path / "imported", "folder", *options)) == 0
+    capsys.readouterr()
+    main(["calibrate", str(tmp_path / "imported"), "--method", "opencv-park", "--no-loo"])
+    out = capsys.readouterr().out
+    assert "a poor fit): the robot poses look like flange-to-base (inverted)" in out
+    assert "pass --pose-direction flange-to-base" in out
+
+
 def test_pose_pairs_import_back_as_written(tmp_path, capsys) -> None:
     rng = np.random.default_rng(2)
     from scipy.spatial.transform import Rotation

@@ -83,6 +83,11 @@ def opencv_calibrate(problem: CalibrationProblem, options: MethodOptions, method
                 R_base_flange, t_base_flange, R_cam_board, t_cam_board, method=OPENCV_METHODS[method]
             )
             X = make_transform(R_flange_cam, t_flange_cam.ravel())
+            if not np.linalg.det(X[:3, :3]) > 0.0:  # NaN or a reflection: the poses fit no mount
+                raise CalibrationInputError(
+                    f"{method}: OpenCV found no solution (its rotation is not a rotation: do the robot "
+                    "poses fit the camera's views at all?)"
+                )
             B = mean_pose([F @ X @ C for F, C in zip(T_base_flange, T_cam_board, strict=True)])
     except cv2.error as e:
         hint = (

@@ -15,13 +15,18 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from estimator.geometry.transforms import invert
 from estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
+from estimator.observe.pose_pairs import PosePair
 from estimator.solve.baselines import opencv_calibrate
 from estimator.solve.calibration import MethodOptions
+from estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
 # A mistaken convention is named when it leaves at most this fraction of the stated one's residual.
 MISTAKE_RATIO = 0.3
+# Which way a pose pair's board pose maps: camera-to-target is T_cam_board (easy_handeye2's tracking).
+TRACKING_DIRECTIONS = ("camera-to-target", "target-to-camera")
 _OPTION = {
     "rotation": "--rotation",
     "angle_unit": "--angle-unit",
@@ -146,3 +151,68 @@ def _other(direction: str) -> str:
 
 def _swap(value: str, a: str, b: str) -> str:
     return b if value == a else a
+
+
+@dataclass(frozen=True)
+class PairReading:
+    """One reading of imported pose pairs: the mistake in words ("" as stated), the options that
+    select it, and the RMS translation (metres) of the board pose over the pairs at Park's solution
+    for it (inf when Park fails)."""
+
+    mistake: str
+    option: str
+    residual_m: float
+
+
+def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, tracking_direction: str) -> str:
+    """Which reading of pose pairs fits: as stated (pairs read in robot_direction and
+    tracking_direction), the robot poses inverted, the camera-to-target poses inverted, or both; in
+    words, with the residual before and after (the board pose's RMS translation over the pairs at
+    Park's solution)."""
+    other_robot, other_tracking = _other(robot_direction), _swap(tracking_direction, *TRACKING_DIRECTIONS)
+    readings = [
+        ("", "", False, False),
+        (f"robot poses {other_robot} (inverted)", f"--pose-direction {other_robot}", True, False),
+        (
+            f"tracking poses {other_tracking} (inverted)",
+            f"--tracking-direction {other_tracking}",
+            False,
+            True,
+        ),
+        (
+            "both inverted",
+            f"--pose-direction {other_robot} --tracking-direction {other_tracking}",
+            True,
+            True,
+        ),
+    ]
+    trials = [PairReading(m, o, _pair_residual(pairs, a, z)) for m, o, a, z in readings]
+    stated, best = trials[0], min(trials[1:], key=lambda t: t.residual_m)
+    if best.residual_m < MISTAKE_RATIO * stated.residual_m:
+        after = f"{1e3 * best.residual_m:.3g} mm"
+        change = (
+            f"as stated Park finds no solution, read so the board pose's spread is {after}"
+            if not np.isfinite(stated.residual_m)
+            else f"the board pose's spread drops from {1e3 * stated.residual_m:.3g} mm to {after}"
+        )
+        return f"the pose pairs look like {best.mistake}: {change}; pass {best.option}"
+    return (
+        f"the pose pairs fit the stated directions (the board pose's spread {1e3 * stated.residual_m:.3g} mm "
+        "RMS); none of the common mistakes fits better"
+    )
+
+
+def _pair_residual(pairs: list[PosePair], invert_robot: bool, invert_tracking: bool) -> float:
+    read = [
+        PosePair(
+            p.frame,
+            invert(p.T_base_flange) if invert_robot else p.T_base_flange,
+            invert(p.T_cam_board) if invert_tracking else p.T_cam_board,
+        )
+        for p in pairs
+    ]
+    try:
+        X, B = opencv_pose_pairs(read, "opencv-park")
+    except (CalibrationInputError, np.linalg.LinAlgError, ValueError):
+        return float("inf")
+    return PosePairModel(read, PAIR_NOISE_FREE).rms(X, B)[0]

@@ -110,8 +110,8 @@ def opencv_pose_pairs(pairs: list[PosePair], method: str) -> tuple[np.ndarray, n
         raise CalibrationInputError(
             f"{method} found no solution ({str(exc).strip().splitlines()[-1]})"
         ) from None
-    if not np.all(np.isfinite(X)):
-        raise CalibrationInputError(f"{method} found no solution (non-finite result)")
+    if not np.all(np.isfinite(X)) or np.linalg.det(X[:3, :3]) <= 0.0:
+        raise CalibrationInputError(f"{method} found no solution (its rotation is not a rotation)")
     return X, mean_pose([a @ X @ z for a, z in zip(A, Z, strict=True)])
 
 

@@ -46,6 +46,8 @@ from experiments.calibrate.report import (
 from experiments.detection import cached_or_detected
 
 ALL_METHODS = "all"
+# An imported dataset fitted worse than this (RMS pixel residual) gets its pose convention checked.
+POOR_FIT_PX = 2.0
 
 
 class PriorFileError(ValueError):
@@ -213,8 +215,15 @@ def _print_header(
 
 def frame_notes(observations: list[FrameObservations]) -> list[str]:
     """What the detection said of frames it kept (a depth image not aligned to the colour image,
-    without valid pixels), one line per frame and note."""
-    return [f"frame {o.frame}: {note}" for o in observations for note in o.notes]
+    without valid pixels), one line per note with the frames it was said of."""
+    frames: dict[str, list[int]] = {}
+    for o in observations:
+        for note in o.notes:
+            frames.setdefault(note, []).append(o.frame)
+    return [
+        f"frame {said[0]}: {note}" if len(said) == 1 else f"frames {', '.join(map(str, said))}: {note}"
+        for note, said in frames.items()
+    ]
 
 
 def _note_ignored_options(settings: CalibrateSettings) -> None:
@@ -261,15 +270,22 @@ def calibrate_dataset(
         observations, dataset.board, dataset.intrinsics, noise, settings.use_depth, dataset_arm(dataset)
     )
     _note_ignored_options(settings)
-    results = run_methods(
-        settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
-    )
+    try:
+        results = run_methods(
+            settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
+        )
+    except CalibrationInputError as exc:
+        for line in convention_lines(dataset, problem, [MethodFailure(settings.method, str(exc))]):
+            print(line)
+        raise
     T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
     _print_header(dataset, problem, observations, settings, source, noise_source)
     if settings.method == ALL_METHODS:
         print(format_comparison(results, T_true))
     else:
         print(format_calibration(results[0], T_true))
+    for line in convention_lines(dataset, problem, results):
+        print(line)
     if json_out is not None:
         data = _context(dataset, problem, settings, noise_source) | {"frame_notes": frame_notes(observations)}
         if settings.method == ALL_METHODS:
@@ -278,6 +294,27 @@ def calibrate_dataset(
             data |= calibration_to_dict(results[0], T_true)
         print(f"wrote {write_json(json_out, data)}")
     return results
+
+
+def convention_lines(dataset: Dataset, problem: CalibrationProblem, results: list[Result]) -> list[str]:
+    """For an imported dataset whose poses some method fits poorly (RMS over POOR_FIT_PX) or not at
+    all, the convention check of its pose numbers (estimator.solve.convention_check): the lines to
+    print."""
+    from estimator.io.pose_file import PoseConvention
+    from estimator.solve.convention_check import check_pose_convention
+
+    record = dataset.metadata.get("provenance") or {}
+    poor = [r for r in results if isinstance(r, MethodFailure) or r.residual_rms_px > POOR_FIT_PX]
+    if "pose_values" not in record or not poor:
+        return []
+    stated = PoseConvention(**record["pose_convention"])
+    report = check_pose_convention(problem, np.array(record["pose_values"]), stated)
+    why = (
+        f"{poor[0].method} failed"
+        if isinstance(poor[0], MethodFailure)
+        else f"{poor[0].method} leaves {poor[0].residual_rms_px:.3g} px RMS"
+    )
+    return [f"convention check ({why}, a poor fit): {report.message}"]
 
 
 def run(args: argparse.Namespace) -> int:
