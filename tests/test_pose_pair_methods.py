@@ -115,3 +115,23 @@ def test_calibrate_and_detect_on_an_imported_pose_pair_set(tmp_path: Path, capsy
     assert main(["detect", str(tmp_path / "pairs")]) == 2
     assert "holds imported pose pairs (pose_pairs.json) and no images" in capsys.readouterr().err
     assert (tmp_path / "pairs" / "pose_pairs.json").is_file()
+
+
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        ([], None),
+        (["--tracking-direction", "target-to-camera"], "pass --tracking-direction camera-to-target"),
+        (["--pose-direction", "flange-to-base"], "pass --pose-direction base-to-flange"),
+    ],
+)
+def test_import_names_a_wrong_pose_pair_direction(tmp_path: Path, capsys, options, named) -> None:
+    samples = write_easy_handeye_samples(
+        tmp_path / "cell.samples", _pairs(np.random.default_rng(4), 12, SIGMAS)
+    )
+    assert main(["import", "easy_handeye2", str(samples), "--out", str(tmp_path / "pairs"), *options]) == 0
+    out = capsys.readouterr().out
+    if named is None:
+        assert "convention check: the pose pairs fit the stated directions" in out
+    else:
+        assert "convention check: the pose pairs look like" in out and named in out
