@@ -27,11 +27,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.targets.detection import Detections, MarkerDetection, Rejection, image_problem, to_gray
+from estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.qr_fit import TEMPLATE_QUIET_MODULES, MarkerFitError, fit_marker
 from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError
+from estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
 
 DICTIONARY = "DICT_APRILTAG_36h11"
 CODE_BITS = 6  # a 36h11 tag's code is 6 x 6 cells inside its black border
@@ -162,23 +162,16 @@ class AprilGridBoard:
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> AprilGridBoard:
         """Validate and build; errors name ``source`` and the field."""
-        name = d.get("name")
-        if not isinstance(name, str) or not name:
-            raise BoardDefinitionError(f"{source}: field 'name' should be a non-empty string, got {name!r}")
-        size = d.get("size_m")
-        if not (isinstance(size, list) and len(size) == 2 and all(_number(v) and v > 0 for v in size)):
-            raise BoardDefinitionError(
-                f"{source}: field 'size_m' should be [width, height] > 0, got {size!r}"
-            )
+        name, size = sheet_fields(d, source)
         board = cls(
             name=name,
-            size_m=(float(size[0]), float(size[1])),
-            tag_cols=_integer(d, "tag_cols", source, least=1),
-            tag_rows=_integer(d, "tag_rows", source, least=1),
-            tag_size_m=_positive(d, "tag_size_m", source),
-            tag_spacing=_positive(d, "tag_spacing", source),
-            border_bits=_integer(d, "border_bits", source, least=1, default=2),
-            first_id=_integer(d, "first_id", source, least=0, default=0),
+            size_m=size,
+            tag_cols=integer_field(d, "tag_cols", source, least=1),
+            tag_rows=integer_field(d, "tag_rows", source, least=1),
+            tag_size_m=positive_field(d, "tag_size_m", source),
+            tag_spacing=positive_field(d, "tag_spacing", source),
+            border_bits=integer_field(d, "border_bits", source, least=1, default=2),
+            first_id=integer_field(d, "first_id", source, least=0, default=0),
         )
         last = board.marker_ids[-1]
         if last >= _dictionary().bytesList.shape[0]:
@@ -202,24 +195,6 @@ class AprilGridBoard:
         return board
 
 
-def _number(v: object) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
-
-
-def _integer(d: dict, key: str, source: str, least: int, default: int | None = None) -> int:
-    value = d.get(key, default)
-    if not isinstance(value, int) or isinstance(value, bool) or value < least:
-        raise BoardDefinitionError(f"{source}: field '{key}' should be an integer >= {least}, got {value!r}")
-    return value
-
-
-def _positive(d: dict, key: str, source: str) -> float:
-    value = d.get(key)
-    if not _number(value) or not value > 0:
-        raise BoardDefinitionError(f"{source}: field '{key}' should be a number > 0, got {value!r}")
-    return float(value)
-
-
 class AprilGridDetector:
     """Finds an AprilGrid's tags in images: OpenCV's ArucoDetector for the IDs and rough corners,
     then the tag's cells aligned to the image for sub-pixel corners and their covariance."""
@@ -236,14 +211,10 @@ class AprilGridDetector:
 
     def detect(self, image: np.ndarray) -> Detections:
         """The board's tags in an (H, W, 3) RGB or (H, W) grey uint8 image."""
-        try:
-            gray = to_gray(image)
-        except ValueError as exc:
-            return Detections(problem=str(exc))
-        problem = image_problem(gray)
-        if problem is not None:
-            return Detections(problem=problem)
-        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()), passes_run=["aruco"])
+        gray, result = start_detection(image)
+        if gray is None:
+            return result
+        result.passes_run.append("aruco")
         corners, ids, _ = self._aruco.detectMarkers(gray)
         found = (
             []

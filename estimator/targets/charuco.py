@@ -22,10 +22,10 @@ import cv2
 import numpy as np
 
 from estimator.targets import checker
-from estimator.targets.detection import Detections, image_problem, to_gray
+from estimator.targets.detection import Detections, start_detection
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError
+from estimator.targets.target import BoardDefinitionError, positive_field
 
 # Error per coordinate image noise does not explain at a ChArUco corner, pixels: the RMS on
 # noise-free renders of the default trajectory (charuco_10x5: 17 views, 606 corners).
@@ -38,7 +38,7 @@ def _dictionary(name: str) -> cv2.aruco.Dictionary:
 
 
 @dataclass(frozen=True)
-class CharucoBoard:
+class CharucoBoard(checker.GridCorners):
     """A ChArUco board on a sheet (module doc); lengths in metres."""
 
     name: str
@@ -50,38 +50,11 @@ class CharucoBoard:
     dictionary: str
 
     kind = "charuco"
-    points_per_marker = 1
-    markers_placed_one_by_one = False
-    corners_homography_fitted = False
-
-    @property
-    def marker_ids(self) -> list[int]:
-        return checker.corner_ids(self.squares_x, self.squares_y)
 
     @property
     def feature_m(self) -> float:
         """One cell of an ArUco marker."""
         return self.marker_m / (self.opencv_board().getDictionary().markerSize + 2)
-
-    @property
-    def visible_margin_m(self) -> float:
-        """The corner's 2 x 2 squares (its fit's block)."""
-        return self.square_m
-
-    def marker_corners(self, marker_id: int) -> np.ndarray:
-        """(1, 3) the corner in the board frame."""
-        return self.marker_center(marker_id)[None, :]
-
-    def marker_center(self, marker_id: int) -> np.ndarray:
-        x, y = checker.corner_xy(self.squares_x, self.squares_y, self.square_m, marker_id)
-        return np.array([x, y, 0.0])
-
-    def all_corners(self) -> np.ndarray:
-        """(M, 1, 3) every corner, ordered by ID."""
-        return np.stack([self.marker_corners(i) for i in self.marker_ids])
-
-    def pinned(self) -> CharucoBoard:
-        return self
 
     def opencv_board(self) -> cv2.aruco.CharucoBoard:
         """OpenCV's board of this geometry (its frame: module doc of checker)."""
@@ -125,7 +98,7 @@ class CharucoBoard:
     def from_dict(cls, d: dict, source: str = "board definition") -> CharucoBoard:
         """Validate and build; errors name ``source`` and the field."""
         name, size, squares_x, squares_y, square_m = checker.check_grid(d, source)
-        marker_m = checker.positive_field(d, "marker_m", source)
+        marker_m = positive_field(d, "marker_m", source)
         if marker_m >= square_m:
             raise BoardDefinitionError(
                 f"{source}: field 'marker_m' {marker_m} should be smaller than 'square_m' {square_m}"
@@ -174,14 +147,10 @@ class CharucoDetector:
 
     def detect(self, image: np.ndarray) -> Detections:
         """The board's corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
-        try:
-            gray = to_gray(image)
-        except ValueError as exc:
-            return Detections(problem=str(exc))
-        problem = image_problem(gray)
-        if problem is not None:
-            return Detections(problem=problem)
-        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()), passes_run=["charuco"])
+        gray, result = start_detection(image)
+        if gray is None:
+            return result
+        result.passes_run.append("charuco")
         corners, ids, _, _ = self._detector.detectBoard(gray)
         if ids is None or len(ids) == 0:
             result.problem = f"no corner of ChArUco board {self.board.name!r} found"

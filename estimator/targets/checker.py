@@ -26,7 +26,7 @@ import numpy as np
 from estimator.targets.detection import MarkerDetection, Rejection
 from estimator.targets.qr_fit import MarkerFitError, TemplateFrame, fit_template
 from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError
+from estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
 
 # Template pixels per square: the image's, clipped to this range (a template much coarser than the
 # image biases the fit, see qr_fit.fit_marker).
@@ -35,6 +35,45 @@ MAX_TEMPLATE_PX_PER_SQUARE = 24
 # The image cut for a corner's fit reaches this far around its 2 x 2 block, in block sides (the
 # template's one-square surround is 0.5).
 REGION_FRACTION = 0.6
+
+
+class GridCorners:
+    """The inner corners of a squares_x x squares_y grid of square_m squares as one-point markers
+    (module doc): what a chessboard and a ChArUco board share. Their frozen dataclasses hold the
+    three fields."""
+
+    squares_x: int
+    squares_y: int
+    square_m: float
+
+    points_per_marker = 1
+    markers_placed_one_by_one = False
+    corners_homography_fitted = False
+
+    @property
+    def marker_ids(self) -> list[int]:
+        return corner_ids(self.squares_x, self.squares_y)
+
+    @property
+    def visible_margin_m(self) -> float:
+        """The corner's 2 x 2 squares (its fit's block)."""
+        return self.square_m
+
+    def marker_corners(self, marker_id: int) -> np.ndarray:
+        """(1, 3) the corner in the board frame."""
+        return self.marker_center(marker_id)[None, :]
+
+    def marker_center(self, marker_id: int) -> np.ndarray:
+        x, y = corner_xy(self.squares_x, self.squares_y, self.square_m, marker_id)
+        return np.array([x, y, 0.0])
+
+    def all_corners(self) -> np.ndarray:
+        """(M, 1, 3) every corner, ordered by ID."""
+        return np.stack([self.marker_corners(i) for i in self.marker_ids])
+
+    def pinned(self) -> GridCorners:
+        """Nothing left to choose: the board itself."""
+        return self
 
 
 def grid_size_m(squares_x: int, squares_y: int, square_m: float) -> tuple[float, float]:
@@ -65,12 +104,7 @@ def check_grid(d: dict, source: str) -> tuple[str, tuple[float, float], int, int
     """name, size_m, squares_x, squares_y, square_m of a board file, validated (errors name source
     and the field); the grid must fit on the sheet with a square of white around it (the corner
     fit's surround)."""
-    name = d.get("name")
-    if not isinstance(name, str) or not name:
-        raise BoardDefinitionError(f"{source}: field 'name' should be a non-empty string, got {name!r}")
-    size = d.get("size_m")
-    if not (isinstance(size, list) and len(size) == 2 and all(is_number(v) and v > 0 for v in size)):
-        raise BoardDefinitionError(f"{source}: field 'size_m' should be [width, height] > 0, got {size!r}")
+    name, size = sheet_fields(d, source)
     squares_x = integer_field(d, "squares_x", source, least=2)
     squares_y = integer_field(d, "squares_y", source, least=2)
     square_m = positive_field(d, "square_m", source)
@@ -79,27 +113,9 @@ def check_grid(d: dict, source: str) -> tuple[str, tuple[float, float], int, int
         raise BoardDefinitionError(
             f"{source}: the {squares_x}x{squares_y} grid of {square_m * 1e3:g} mm squares with a square of "
             f"white around it ({(width + 2 * square_m) * 1e3:.0f} x {(height + 2 * square_m) * 1e3:.0f} mm) "
-            f"does not fit on the sheet 'size_m' {size}"
+            f"does not fit on the sheet 'size_m' {list(size)}"
         )
-    return name, (float(size[0]), float(size[1])), squares_x, squares_y, square_m
-
-
-def is_number(v: object) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
-
-
-def integer_field(d: dict, key: str, source: str, least: int, default: int | None = None) -> int:
-    value = d.get(key, default)
-    if not isinstance(value, int) or isinstance(value, bool) or value < least:
-        raise BoardDefinitionError(f"{source}: field '{key}' should be an integer >= {least}, got {value!r}")
-    return value
-
-
-def positive_field(d: dict, key: str, source: str) -> float:
-    value = d.get(key)
-    if not is_number(value) or not value > 0:
-        raise BoardDefinitionError(f"{source}: field '{key}' should be a number > 0, got {value!r}")
-    return float(value)
+    return name, size, squares_x, squares_y, square_m
 
 
 class CornerFitter:

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from estimator.targets import checker
-from estimator.targets.detection import Detections, image_problem, to_gray
+from estimator.targets.detection import Detections, start_detection
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.sheet import CellBlock, draw_sheet
 from estimator.targets.target import BoardDefinitionError
@@ -34,7 +34,7 @@ CORNER_FLOOR_PX = 0.026
 
 
 @dataclass(frozen=True)
-class ChessboardBoard:
+class ChessboardBoard(checker.GridCorners):
     """A chessboard on a sheet (module doc); lengths in metres."""
 
     name: str
@@ -44,37 +44,10 @@ class ChessboardBoard:
     square_m: float
 
     kind = "chessboard"
-    points_per_marker = 1
-    markers_placed_one_by_one = False
-    corners_homography_fitted = False
-
-    @property
-    def marker_ids(self) -> list[int]:
-        return checker.corner_ids(self.squares_x, self.squares_y)
 
     @property
     def feature_m(self) -> float:
         return self.square_m
-
-    @property
-    def visible_margin_m(self) -> float:
-        """The corner's 2 x 2 squares (its fit's block)."""
-        return self.square_m
-
-    def marker_corners(self, marker_id: int) -> np.ndarray:
-        """(1, 3) the corner in the board frame."""
-        return self.marker_center(marker_id)[None, :]
-
-    def marker_center(self, marker_id: int) -> np.ndarray:
-        x, y = checker.corner_xy(self.squares_x, self.squares_y, self.square_m, marker_id)
-        return np.array([x, y, 0.0])
-
-    def all_corners(self) -> np.ndarray:
-        """(M, 1, 3) every corner, ordered by ID."""
-        return np.stack([self.marker_corners(i) for i in self.marker_ids])
-
-    def pinned(self) -> ChessboardBoard:
-        return self
 
     def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
         """The sheet as an (H, W) uint8 image (sheet.draw_sheet)."""
@@ -128,14 +101,10 @@ class ChessboardDetector:
 
     def detect(self, image: np.ndarray) -> Detections:
         """The board's inner corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
-        try:
-            gray = to_gray(image)
-        except ValueError as exc:
-            return Detections(problem=str(exc))
-        problem = image_problem(gray)
-        if problem is not None:
-            return Detections(problem=problem)
-        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()), passes_run=["sb"])
+        gray, result = start_detection(image)
+        if gray is None:
+            return result
+        result.passes_run.append("sb")
         found, grid = cv2.findChessboardCornersSB(gray, self._pattern, flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
             result.problem = (

@@ -80,6 +80,20 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"expected an (H, W) grey or (H, W, 3) RGB image, got shape {image.shape}")
 
 
+def start_detection(image: np.ndarray) -> tuple[np.ndarray | None, Detections]:
+    """The (H, W) uint8 grey of an image a detector was given and its Detections begun with the
+    image's sharpness; the grey is None, and the Detections say why, when the image cannot hold a
+    readable marker (to_gray's errors, image_problem)."""
+    try:
+        gray = to_gray(image)
+    except ValueError as exc:
+        return None, Detections(problem=str(exc))
+    problem = image_problem(gray)
+    if problem is not None:
+        return None, Detections(problem=problem)
+    return gray, Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()))
+
+
 def image_problem(gray: np.ndarray) -> str | None:
     """Why an image cannot hold a readable marker (empty, black, saturated, flat), or None."""
     if gray.size == 0 or min(gray.shape) < 21:

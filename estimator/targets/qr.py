@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from estimator.targets.board import BoardDefinition
-from estimator.targets.detection import Detections, MarkerDetection, Rejection, image_problem, to_gray
+from estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
 from estimator.targets.qr_decode import BACKENDS, DecodedSymbol, decode_qr
 from estimator.targets.qr_fit import (
     DEFAULT_CENTER_FLOOR_PX,
@@ -128,14 +128,9 @@ class QRDetector:
 
     def detect(self, image: np.ndarray) -> Detections:
         """Detect the board's markers. image: (H, W, 3) RGB or (H, W) grey, uint8."""
-        try:
-            gray = to_gray(image)
-        except ValueError as exc:
-            return Detections(problem=str(exc))
-        problem = image_problem(gray)
-        if problem is not None:
-            return Detections(problem=problem)
-        result = Detections(sharpness=float(cv2.Laplacian(gray, cv2.CV_32F).var()))
+        gray, result = start_detection(image)
+        if gray is None:
+            return result
         seen: list[DecodedSymbol] = []
         candidates: list[_Candidate] = []
         for (backend, scale), spec in zip(self._passes, self.settings.passes, strict=True):
