@@ -137,13 +137,7 @@ class CharucoDetector:
         self._detector = cv2.aruco.CharucoDetector(board.opencv_board())
         # A corner is its own centre: one floor for both.
         self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, CORNER_FLOOR_PX)
-        self._fitter = checker.CornerFitter(
-            board.cell_blocks(),
-            board.square_m,
-            lambda i: board.marker_center(i)[:2],
-            self.corner_floor_px,
-            self.settings.min_correlation,
-        )
+        self._fitter = checker.CornerFitter(board, self.corner_floor_px, self.settings.min_correlation)
 
     def detect(self, image: np.ndarray) -> Detections:
         """The board's corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""

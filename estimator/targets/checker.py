@@ -18,7 +18,6 @@ the fit's centre covariance plus a floor measured on noise-free renders.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -119,21 +118,13 @@ def check_grid(d: dict, source: str) -> tuple[str, tuple[float, float], int, int
 
 
 class CornerFitter:
-    """Sub-pixel corners of a grid board (module doc). blocks: the board's cells (its image's
-    blocks); xy: corner ID -> (2,) board-frame position; floor_px: error per coordinate image noise
-    does not explain."""
+    """Sub-pixel corners of a grid board (module doc): board, a GridCorners with cell_blocks(),
+    what it prints; floor_px: error per coordinate image noise does not explain."""
 
-    def __init__(
-        self,
-        blocks: tuple[CellBlock, ...],
-        square_m: float,
-        xy: Callable[[int], np.ndarray],
-        floor_px: float,
-        min_correlation: float,
-    ) -> None:
-        self._blocks = blocks
-        self._square_m = square_m
-        self._xy = xy
+    def __init__(self, board: GridCorners, floor_px: float, min_correlation: float) -> None:
+        self._blocks = board.cell_blocks()
+        self._square_m = board.square_m
+        self._xy = lambda corner_id: board.marker_center(corner_id)[:2]
         self._floor_px = floor_px
         self._min_correlation = min_correlation
         self._template = functools.lru_cache(maxsize=1024)(self._draw_template)

@@ -91,13 +91,7 @@ class ChessboardDetector:
         self._pattern = (board.squares_x - 1, board.squares_y - 1)
         # A corner is its own centre: one floor for both.
         self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, CORNER_FLOOR_PX)
-        self._fitter = checker.CornerFitter(
-            board.cell_blocks(),
-            board.square_m,
-            lambda i: board.marker_center(i)[:2],
-            self.corner_floor_px,
-            self.settings.min_correlation,
-        )
+        self._fitter = checker.CornerFitter(board, self.corner_floor_px, self.settings.min_correlation)
 
     def detect(self, image: np.ndarray) -> Detections:
         """The board's inner corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
