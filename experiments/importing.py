@@ -9,11 +9,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from estimator.geometry.camera import CameraIntrinsics
+from estimator.geometry.kinematics import JOINT_ORDERS
 from estimator.geometry.transforms import invert
-from estimator.io.dataset import load_dataset
+from estimator.io.dataset import Dataset, load_dataset
 from estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
-from estimator.io.layouts import LayoutError, read_easy_handeye_samples, read_folder, read_visp
+from estimator.io.layouts import JointFile, LayoutError, read_easy_handeye_samples, read_folder, read_visp
 from estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
 from estimator.observe.pose_pairs import PosePair
 from estimator.solve.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
@@ -55,6 +58,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=TRACKING_DIRECTIONS,
         help="easy_handeye2: which way the tracking poses map (default: %(default)s, T_cam_board)",
     )
+    p.add_argument(
+        "--joints", type=Path, help="folder layout: joint angles per image (CSV with a header, or JSON)"
+    )
+    p.add_argument("--joint-unit", default="rad", choices=("rad", "deg"), help="default: %(default)s")
+    p.add_argument(
+        "--joint-order",
+        default="arm",
+        choices=JOINT_ORDERS,
+        help="a UR arm's six joints: the arm's order (base first) or the ROS driver's /joint_states "
+        "(elbow first); default: %(default)s",
+    )
     p.add_argument("--depth", type=Path, help="folder layout: 16-bit depth PNGs named as the images")
     p.add_argument(
         "--depth-scale", type=arguments.positive, default=0.001, help="metres per depth unit (default 0.001)"
@@ -89,10 +103,15 @@ def run(args: argparse.Namespace) -> int:
         if args.layout == "folder":
             if args.poses is None:
                 raise ValueError("--poses is needed with the folder layout")
-            frames = read_folder(args.source, args.poses, _convention(args), args.depth)
-            sources = [args.source, args.poses] + ([args.depth] if args.depth else [])
+            joint_file = (
+                None if args.joints is None else JointFile(args.joints, args.joint_unit, args.joint_order)
+            )
+            frames = read_folder(args.source, args.poses, _convention(args), args.depth, joint_file)
+            sources = [args.source, args.poses] + [p for p in (args.depth, args.joints) if p]
         else:
-            frames = read_visp(args.source)
+            if args.joints is not None:
+                raise ValueError("--joints is for the folder layout (ViSP's layout has no joints)")
+            joint_file, frames = None, read_visp(args.source)
             sources = [args.source]
         extra = {"robot_model": args.robot_model} if args.robot_model else {}
         out = import_images(
@@ -101,15 +120,16 @@ def run(args: argparse.Namespace) -> int:
             board,
             intrinsics,
             args.depth_scale,
-            provenance(args.layout, sources, frames),
+            provenance(args.layout, sources, frames, joint_file),
             extra,
             args.force,
         )
     except IMPORT_ERRORS as exc:
         raise ValueError(str(exc)) from None
     depth = sum(d is not None for d in frames.depths)
+    joints = "" if frames.joints is None else f", {frames.joints.shape[1]} joints each,"
     print(
-        f"imported {len(frames.images)} images ({depth} with depth) with robot poses read as "
+        f"imported {len(frames.images)} images ({depth} with depth){joints} with robot poses read as "
         f"{_describe(frames.convention)} into {out}"
     )
     if not args.no_check:
@@ -177,4 +197,21 @@ def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
     problem = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
     report = check_pose_convention(problem, record["pose_values"], stated)
     lines.append(f"convention check: {report.message}")
+    if "joints" in record:
+        lines.append(f"joint check: {_joint_check(dataset)}")
     return lines
+
+
+def _joint_check(dataset: Dataset) -> str:
+    """The joint-order check of an imported dataset with joints, or why it cannot run."""
+    from estimator.solve.convention_check import check_joint_order
+    from estimator.solve.problem import dataset_arm
+
+    arm = dataset_arm(dataset)
+    if arm is None:
+        return "not run: it needs a UR arm's six joints per image and --robot-model"
+    T_base_flange = np.array([row["T_base_flange"] for row in dataset.rows])
+    joints = np.array([arm.joints[i] for i in range(len(dataset.rows))])
+    return check_joint_order(
+        T_base_flange, joints, arm.kinematics, dataset.metadata["provenance"]["joints"]["order"]
+    )

@@ -45,9 +45,10 @@ def exported(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) ->
         reference = writer.finish()
     pngs = [(source.root / row["rgb"]).read_bytes() for row in source.rows]
     T_base_flange = np.array([row["T_base_flange"] for row in source.rows])
+    joints = np.array([row["joints"] for row in source.rows])
     return {
         "reference": reference,
-        "folder": write_folder(root / "folder", pngs, T_base_flange, CONVENTION),
+        "folder": write_folder(root / "folder", pngs, T_base_flange, CONVENTION, joints),
         "visp": write_visp(root / "visp", pngs, T_base_flange),
         "camera": write_opencv_intrinsics(root / "camera.yaml", source.intrinsics),
     }
@@ -70,6 +71,7 @@ def _import(exported: dict[str, Path], out: Path, layout: str, *options: str) ->
 
 
 FOLDER_OPTIONS = ("--rotation", "euler-xyz", "--angle-unit", "deg", "--length-unit", "mm")
+FLANGE_TO_BASE = ("--pose-direction", "flange-to-base")
 
 
 @pytest.mark.parametrize("layout", ["folder", "visp"])
@@ -145,6 +147,40 @@ def test_calibrate_names_the_convention_mistake_of_a_poor_fit(exported, tmp_path
     out = capsys.readouterr().out
     assert "a poor fit): the robot poses look like flange-to-base (inverted)" in out
     assert "pass --pose-direction flange-to-base" in out
+
+
+@pytest.mark.parametrize(
+    ("written", "options", "said"),
+    [
+        ("arm", (), "the joints fit the robot poses in the arm's order"),
+        ("ros-driver", (), "the joints look like the ROS driver's order (elbow first)"),
+        ("ros-driver", ("--joint-order", "ros-driver"), "the joints fit the robot poses in the ROS driver's"),
+        ("arm", ("--joint-order", "ros-driver"), "the joints look like the arm's order (base joint first)"),
+    ],
+)
+def test_joints_are_imported_in_the_arms_order_and_a_wrong_order_is_named(
+    exported, tmp_path, capsys, written, options, said
+) -> None:
+    """The rendered set's joints written in the arm's or the ROS driver's order (elbow first, as
+    /joint_states gives them), imported with or without --joint-order."""
+    joints = exported["folder"] / "joints.csv"
+    if written == "ros-driver":
+        lines = joints.read_text().splitlines()
+        swapped = [",".join(np.array(line.split(","))[[0, 3, 2, 1, 4, 5, 6]]) for line in lines]
+        joints = tmp_path / "joint_states.csv"
+        joints.write_text("\n".join(swapped) + "\n")
+    options = (*options, "--joints", str(joints), "--robot-model", "ur5")
+    argv = _import(exported, tmp_path / "imported", "folder", *FOLDER_OPTIONS, *FLANGE_TO_BASE, *options)
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "17 joints" not in out and "6 joints each" in out
+    assert f"joint check: {said}" in out
+    if "fit" in said:  # read in the right order, the arm's joints are the rendered ones
+        source = load_dataset(exported["reference"])
+        imported = load_dataset(tmp_path / "imported")
+        np.testing.assert_allclose(
+            [row["joints"] for row in imported.rows], [row["joints"] for row in source.rows], atol=1e-12
+        )
 
 
 def test_pose_pairs_import_back_as_written(tmp_path, capsys) -> None:

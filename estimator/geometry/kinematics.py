@@ -50,6 +50,19 @@ UR5E = URKinematics(
     q_upper=_LIMITS[1],
 )
 ROBOTS = {k.name: k for k in (UR5, UR5E)}
+# The orders a UR arm's six joint angles are written in: the arm's own (base, shoulder, elbow,
+# wrist 1-3) and the ROS driver's /joint_states (names sorted: elbow, shoulder_lift, shoulder_pan,
+# wrist 1-3). Swapping the first and third angle turns either into the other.
+JOINT_ORDERS = ("arm", "ros-driver")
+_DRIVER_SWAP = np.array([2, 1, 0, 3, 4, 5])
+
+
+def joints_in_arm_order(joints: np.ndarray, order: str) -> np.ndarray:
+    """(N, 6) joint angles written in order (JOINT_ORDERS) -> the arm's order."""
+    if order not in JOINT_ORDERS:
+        raise ValueError(f"joint order must be one of {', '.join(JOINT_ORDERS)}, got {order!r}")
+    joints = np.asarray(joints, dtype=np.float64)
+    return joints[:, _DRIVER_SWAP] if order == "ros-driver" else joints
 
 
 @lru_cache(maxsize=32)

@@ -15,14 +15,20 @@ import numpy as np
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.io.dataset import DatasetWriter, Frame
 from estimator.io.depth_png import decode_depth
-from estimator.io.layouts import LayoutError, LayoutFrames
+from estimator.io.layouts import JointFile, LayoutError, LayoutFrames
 from estimator.observe.pose_pairs import POSE_PAIRS_FILE, PosePair, pose_pairs_json
 from estimator.targets.target import Target
 
 
-def provenance(layout: str, sources: list[str | Path], frames: LayoutFrames | None = None) -> dict:
+def provenance(
+    layout: str,
+    sources: list[str | Path],
+    frames: LayoutFrames | None = None,
+    joint_file: JointFile | None = None,
+) -> dict:
     """dataset.json's 'provenance' of an import: layout, absolute source paths, the pose convention
-    and pose numbers (image layouts), the hec version and the time (UTC, ISO 8601)."""
+    and pose numbers (image layouts), the joints' unit and order as the source wrote them, the hec
+    version and the time (UTC, ISO 8601)."""
     try:
         hec_version = version("hec")
     except PackageNotFoundError:
@@ -37,6 +43,8 @@ def provenance(layout: str, sources: list[str | Path], frames: LayoutFrames | No
         record["pose_convention"] = frames.convention.to_dict()
         record["pose_values"] = np.asarray(frames.pose_values, dtype=float).tolist()
         record["images"] = [str(p.resolve()) for p in frames.images]
+    if joint_file is not None:
+        record["joints"] = {"unit": joint_file.unit, "order": joint_file.order}
     return record
 
 
@@ -61,7 +69,7 @@ def import_images(
                     depth_m=None if depth is None else _depth(depth, intrinsics, depth_scale_m),
                     intrinsics=intrinsics,
                     T_base_flange=T_base_flange[i],
-                    joints=np.zeros(0),
+                    joints=np.zeros(0) if frames.joints is None else frames.joints[i],
                     time_s=float(i),
                 )
             )

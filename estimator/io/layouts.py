@@ -2,7 +2,8 @@
 
 - ``folder``: a folder of images plus a pose file in any convention (estimator.io.pose_file), one
   pose per image: by the pose file's ``image`` column, else the images in name order; depth
-  images (16-bit PNG, same names) optionally in another folder.
+  images (16-bit PNG, same names) optionally in another folder; joint angles optionally in a joint
+  file (any count per image; a UR arm's six in its own order or the ROS driver's).
 - ``visp``: ViSP's hand-eye tutorial layout: ``image-N.png`` beside ``pose_fPe_N.yaml`` (N from 1),
   each pose ViSP's vpPoseVector YAML (``rows: 6``, ``cols: 1``, ``data``: translation in metres,
   then theta-u, a rotation vector in radians) of the end-effector in the robot's reference frame,
@@ -25,6 +26,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from estimator.geometry.kinematics import joints_in_arm_order
 from estimator.geometry.transforms import make_transform
 from estimator.io.files import write_atomic
 from estimator.io.pose_file import PoseConvention, poses_from_values, read_pose_values, values_from_poses
@@ -42,15 +44,27 @@ class LayoutError(ValueError):
 
 
 @dataclass(frozen=True)
+class JointFile:
+    """A joint file (estimator.io.pose_file's format, field "joints"): angles in unit ("rad" or
+    "deg"); six angles of a UR arm in order ("arm" or "ros-driver", kinematics.JOINT_ORDERS)."""
+
+    path: Path
+    unit: str = "rad"
+    order: str = "arm"
+
+
+@dataclass(frozen=True)
 class LayoutFrames:
     """Images with their robot poses. images, depths: (N,) paths (depths None where absent).
     pose_values: (N, k) the numbers as the source wrote them, in convention (the convention check
-    reads them in others); T_base_flange: (N, 4, 4) as read in convention."""
+    reads them in others); T_base_flange: (N, 4, 4) as read in convention. joints: (N, n) radians in
+    the arm's order, or None."""
 
     images: list[Path]
     depths: list[Path | None]
     pose_values: np.ndarray
     convention: PoseConvention
+    joints: np.ndarray | None = None
 
     @property
     def T_base_flange(self) -> np.ndarray:
@@ -62,8 +76,9 @@ def read_folder(
     pose_file: str | Path,
     convention: PoseConvention,
     depth_dir: str | Path | None = None,
+    joint_file: JointFile | None = None,
 ) -> LayoutFrames:
-    """An image folder and its pose file (module doc)."""
+    """An image folder, its pose file and optionally depth images and a joint file (module doc)."""
     images_dir = Path(images_dir)
     if not images_dir.is_dir():
         raise LayoutError(f"{images_dir}: no such image folder")
@@ -91,7 +106,41 @@ def read_folder(
     else:
         images = on_disk
     poses_from_values(values, convention, str(pose_file))  # the numbers must read in the convention
-    return LayoutFrames(images, _depths(images, depth_dir), values, convention)
+    joints = None if joint_file is None else _joints(joint_file, images)
+    return LayoutFrames(images, _depths(images, depth_dir), values, convention, joints)
+
+
+def _joints(joint_file: JointFile, images: list[Path]) -> np.ndarray:
+    """(N, n) radians in the arm's order, row i for images[i]: by the joint file's image names, else
+    in its row order."""
+    if joint_file.unit not in ("rad", "deg"):
+        raise LayoutError(f"{joint_file.path}: joint unit must be rad or deg, got {joint_file.unit!r}")
+    names, values = read_pose_values(joint_file.path, field="joints")
+    if any(n is not None for n in names):
+        rows = {name: row for name, row in zip(names, values, strict=True)}
+        missing = [p.name for p in images if p.name not in rows]
+        if missing:
+            raise LayoutError(f"{joint_file.path}: no joints for image {', '.join(missing[:5])}")
+        values = np.array([rows[p.name] for p in images])
+    elif len(values) != len(images):
+        raise LayoutError(
+            f"{joint_file.path} has {len(values)} rows of joints but there are {len(images)} images (and no "
+            "'image' column to match them by name)"
+        )
+    bad = ~np.isfinite(values).all(axis=1)
+    if bad.any():
+        raise LayoutError(
+            f"{joint_file.path}: the joints of image {images[int(np.argmax(bad))].name} are not finite"
+        )
+    values = np.radians(values) if joint_file.unit == "deg" else values
+    if joint_file.order != "arm":
+        if values.shape[1] != 6:
+            raise LayoutError(
+                f"{joint_file.path}: joint order {joint_file.order!r} is a UR arm's, for six joints; "
+                f"the file has {values.shape[1]}"
+            )
+        values = joints_in_arm_order(values, joint_file.order)
+    return values
 
 
 def _depths(images: list[Path], depth_dir: str | Path | None) -> list[Path | None]:
@@ -107,9 +156,14 @@ def _depths(images: list[Path], depth_dir: str | Path | None) -> list[Path | Non
 
 
 def write_folder(
-    out_dir: str | Path, rgb_pngs: list[bytes], T_base_flange: np.ndarray, convention: PoseConvention
+    out_dir: str | Path,
+    rgb_pngs: list[bytes],
+    T_base_flange: np.ndarray,
+    convention: PoseConvention,
+    joints: np.ndarray | None = None,
 ) -> Path:
-    """images/NNNNNN.png and poses.csv (with an image column) in a convention: the folder layout."""
+    """images/NNNNNN.png and poses.csv (with an image column) in a convention: the folder layout;
+    with joints (N, n) radians, also joints.csv (image, q1..qn)."""
     out_dir = Path(out_dir)
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
     lines = ["image," + ",".join(f"v{k}" for k in range(convention.values_per_pose))]
@@ -120,6 +174,10 @@ def write_folder(
         write_atomic(out_dir / "images" / name, png)
         lines.append(name + "," + ",".join(repr(float(v)) for v in values))
     write_atomic(out_dir / "poses.csv", "\n".join(lines) + "\n")
+    if joints is not None:
+        rows = ["image," + ",".join(f"q{k + 1}" for k in range(joints.shape[1]))]
+        rows += [f"{i:06d}.png," + ",".join(repr(float(v)) for v in q) for i, q in enumerate(joints)]
+        write_atomic(out_dir / "joints.csv", "\n".join(rows) + "\n")
     return out_dir
 
 

@@ -14,7 +14,8 @@ base -> tool0); ``flange-to-base``: each is its inverse, T_flange_base.
 
 CSV files have a header row; a column named ``image`` (or ``frame``) names the pose's image, the
 others in order are the pose's numbers (their names are free). JSON files hold a list of
-``{"image": NAME, "pose": [numbers]}`` or an object ``{NAME: [numbers], ...}``.
+``{"image": NAME, "pose": [numbers]}`` or an object ``{NAME: [numbers], ...}``. A joint file is
+read the same way (``"joints"`` for ``"pose"``), one row of joint angles per image.
 """
 
 from __future__ import annotations
@@ -154,14 +155,15 @@ def _check_matrices(T: np.ndarray, where: str) -> None:
         )
 
 
-def read_pose_values(path: str | Path) -> tuple[list[str | None], np.ndarray]:
+def read_pose_values(path: str | Path, field: str = "pose") -> tuple[list[str | None], np.ndarray]:
     """The image names (None where the file gives none) and the (N, k) numbers of a CSV or JSON
-    pose file (module doc); errors name the file, the row and the field."""
+    pose file, or joint file with field "joints" (module doc); errors name the file, the row and
+    the field."""
     path = Path(path)
     if not path.is_file():
-        raise PoseFileError(f"{path}: pose file not found")
+        raise PoseFileError(f"{path}: {'pose' if field == 'pose' else 'joint'} file not found")
     if path.suffix.lower() == ".json":
-        return _read_json(path)
+        return _read_json(path, field)
     return _read_csv(path)
 
 
@@ -192,27 +194,33 @@ def _read_csv(path: Path) -> tuple[list[str | None], np.ndarray]:
     return names, np.array(values)
 
 
-def _read_json(path: Path) -> tuple[list[str | None], np.ndarray]:
+def _read_json(path: Path, field: str) -> tuple[list[str | None], np.ndarray]:
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise PoseFileError(f"{path}: not valid JSON ({exc})") from None
     if isinstance(data, dict):
-        entries = [{"image": k, "pose": v} for k, v in data.items()]
+        entries = [{"image": k, field: v} for k, v in data.items()]
     elif isinstance(data, list):
         entries = data
     else:
-        raise PoseFileError(f"{path}: expected a list of {{'image', 'pose'}} or an object of poses")
+        raise PoseFileError(
+            f"{path}: expected a list of {{'image', '{field}'}} or an object of {field} lists"
+        )
     names: list[str | None] = []
     values = []
     for i, entry in enumerate(entries):
-        pose = entry.get("pose") if isinstance(entry, dict) else None
-        if not isinstance(pose, list) or not all(isinstance(v, int | float) for v in np.ravel(pose).tolist()):
-            raise PoseFileError(f"{path}: entry {i}: field 'pose' should be a list of numbers, got {pose!r}")
+        row = entry.get(field) if isinstance(entry, dict) else None
+        if not isinstance(row, list) or not all(isinstance(v, int | float) for v in np.ravel(row).tolist()):
+            raise PoseFileError(
+                f"{path}: entry {i}: field '{field}' should be a list of numbers, got {row!r}"
+            )
         names.append(entry.get("image"))
-        values.append(np.ravel(pose).tolist())
+        values.append(np.ravel(row).tolist())
     if not values or len({len(v) for v in values}) != 1:
-        raise PoseFileError(f"{path}: every pose must have the same count of numbers (and there must be one)")
+        raise PoseFileError(
+            f"{path}: every entry's '{field}' must have the same count of numbers (and there must be one)"
+        )
     return names, np.array(values, dtype=np.float64)
 
 

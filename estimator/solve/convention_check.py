@@ -14,7 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
 from estimator.geometry.transforms import invert
 from estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
 from estimator.observe.pose_pairs import PosePair
@@ -25,6 +27,9 @@ from estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
 # A mistaken convention is named when it leaves at most this fraction of the stated one's residual.
 MISTAKE_RATIO = 0.3
+# Joints whose rotations between frames differ from the poses' by more than this (degrees RMS) match
+# them in no order: a UR arm's nominal kinematics are within about 0.3 degrees of the real arm's.
+JOINT_MISMATCH_DEG = 1.0
 # Which way a pose pair's board pose maps: camera-to-target is T_cam_board (easy_handeye2's tracking).
 TRACKING_DIRECTIONS = ("camera-to-target", "target-to-camera")
 _OPTION = {
@@ -216,3 +221,44 @@ def _pair_residual(pairs: list[PosePair], invert_robot: bool, invert_tracking: b
     except (CalibrationInputError, np.linalg.LinAlgError, ValueError):
         return float("inf")
     return PosePairModel(read, PAIR_NOISE_FREE).rms(X, B)[0]
+
+
+def check_joint_order(
+    T_base_flange: np.ndarray, joints: np.ndarray, kinematics: URKinematics, stated_order: str
+) -> str:
+    """Whether a UR arm's joints (N, 6, radians, read in stated_order and put in the arm's order)
+    match the robot poses (N, 4, 4) or match them with the first and third angle swapped (the ROS
+    driver's order for the arm's, or the other way); in words, with the residual of each: the RMS
+    difference, over all pairs of frames, between the rotation angle from one frame to the other
+    by the poses and by the kinematics (independent of the base and tool frames either uses)."""
+    swapped = "arm" if stated_order == "ros-driver" else "ros-driver"
+    stated_deg = _joint_residual_deg(T_base_flange, joints, kinematics)
+    swapped_deg = _joint_residual_deg(T_base_flange, joints_in_arm_order(joints, "ros-driver"), kinematics)
+    words = {
+        "arm": "the arm's order (base joint first)",
+        "ros-driver": "the ROS driver's order (elbow first)",
+    }
+    if swapped_deg < MISTAKE_RATIO * stated_deg:
+        return (
+            f"the joints look like {words[swapped]}: the rotation between frames by the kinematics differs "
+            f"from the robot poses' by {stated_deg:.3g} deg RMS as stated, {swapped_deg:.3g} deg read so; "
+            f"pass --joint-order {swapped}"
+        )
+    if stated_deg > JOINT_MISMATCH_DEG:
+        return (
+            f"the joints do not match the robot poses in either order ({stated_deg:.3g} deg RMS as stated, "
+            f"{swapped_deg:.3g} deg swapped): are --robot-model, --joint-unit and the joint file right?"
+        )
+    return f"the joints fit the robot poses in {words[stated_order]} ({stated_deg:.2g} deg RMS)"
+
+
+def _joint_residual_deg(T_base_flange: np.ndarray, joints: np.ndarray, kinematics: URKinematics) -> float:
+    i, j = np.triu_indices(len(joints), k=1)
+
+    def angles(R: np.ndarray) -> np.ndarray:
+        return Rotation.from_matrix(np.swapaxes(R[i], 1, 2) @ R[j]).magnitude()
+
+    by_joints = angles(np.array([forward(kinematics, q)[:3, :3] for q in joints]))
+    return float(
+        np.degrees(np.sqrt(np.mean(np.square(angles(np.asarray(T_base_flange)[:, :3, :3]) - by_joints))))
+    )
