@@ -2,7 +2,9 @@
 (estimator.io.layouts): an image folder with a pose file, ViSP's hand-eye folder, or an
 easy_handeye2 .samples file of pose pairs. Image imports are detected at once (the observations
 cached as `hec detect` would) and the robot poses' convention is checked: if a common mistake fits
-the data much better than the stated convention, hec says which and the option that selects it."""
+the data much better than the stated convention, hec says which and the option that selects it. The
+board file's layout is checked against the images (a mirrored one is named) and imported joints
+against the robot poses (joints in the ROS driver's order are named)."""
 
 from __future__ import annotations
 
@@ -180,7 +182,7 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
 def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
     """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention:
     the lines to print."""
-    from estimator.solve.convention_check import check_pose_convention
+    from estimator.solve.convention_check import check_board_layout, check_pose_convention
     from estimator.solve.problem import build_problem, dataset_robot_noise
     from estimator.targets.qr import DetectorSettings
     from experiments.detection import detect_and_cache
@@ -197,6 +199,7 @@ def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
     problem = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
     report = check_pose_convention(problem, record["pose_values"], stated)
     lines.append(f"convention check: {report.message}")
+    lines.append(f"board check: {check_board_layout(problem)}")
     if "joints" in record:
         lines.append(f"joint check: {_joint_check(dataset)}")
     return lines

@@ -4,6 +4,7 @@ sources are errors that name the file and the field."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -139,6 +140,29 @@ def test_each_convention_mistake_is_named_on_import(exported, tmp_path, capsys, 
     assert "convention check: the robot poses look like" in out and f"pass {named}" in out
 
 
+@pytest.mark.parametrize("mirrored", [False, True])
+def test_a_mirrored_board_file_is_named(exported, tmp_path, capsys, mirrored) -> None:
+    """The 8-QR board file written with y down (its rows swapped, each code's own corners as printed)
+    is named; the right file is not."""
+    board = json.loads(Path("models/boards/hec_8qr.json").read_text())
+    if mirrored:
+        for marker in board["markers"]:
+            marker["center_m"][1] *= -1.0
+    (tmp_path / "board.json").write_text(json.dumps(board))
+    options = (*FOLDER_OPTIONS, *FLANGE_TO_BASE)
+    argv = _import(exported, tmp_path / "imported", "folder", *options)
+    argv[argv.index("hec_8qr")] = str(tmp_path / "board.json")
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    if mirrored:
+        assert "board check: the board file's marker layout looks mirrored top to bottom (y)" in out
+        # nor is the corner noise learned from a board that is not the one in the images
+        noise = json.loads((tmp_path / "imported" / "detections.json").read_text())["corner_noise"]
+        assert "is the board file the board in the images?" in noise["reason"]
+    else:
+        assert "board check: the board file's layout fits the images" in out
+
+
 def test_calibrate_names_the_convention_mistake_of_a_poor_fit(exported, tmp_path, capsys) -> None:
     options = (*FOLDER_OPTIONS, "--pose-direction", "base-to-flange", "--no-check")
     assert main(_import(exported, tmp_path / "imported", "folder", *options)) == 0
@@ -210,6 +234,33 @@ def test_pose_pairs_import_back_as_written(tmp_path, capsys) -> None:
     dataset = load_dataset(tmp_path / "pairs")
     assert dataset.intrinsics is None and dataset.board is None and len(dataset) == 6
     np.testing.assert_allclose(dataset.rows[3]["T_base_flange"], pairs[3].T_base_flange, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def rendered_samples(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The rendered default set as easy_handeye2 samples: reported flange poses, PnP board poses."""
+    from experiments.bench.pose_pairs import rendered_pairs
+
+    pairs = rendered_pairs(load_dataset(default_dataset))
+    return write_easy_handeye_samples(tmp_path_factory.mktemp("samples") / "cell.samples", pairs)
+
+
+@pytest.mark.parametrize(
+    ("options", "said"),
+    [
+        ([], "the pose pairs fit the stated directions"),
+        (["--pose-direction", "flange-to-base"], "robot poses base-to-flange (inverted)"),
+        (["--tracking-direction", "target-to-camera"], "tracking poses camera-to-target (inverted)"),
+        (["--pose-direction", "flange-to-base", "--tracking-direction", "target-to-camera"], "both inverted"),
+    ],
+)
+def test_each_pose_pair_direction_mistake_is_named_on_rendered_pairs(
+    rendered_samples, tmp_path, capsys, options, said
+) -> None:
+    argv = ["import", "easy_handeye2", str(rendered_samples), "--out", str(tmp_path / "pairs"), *options]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert f"convention check: {said}" in out or f"convention check: the pose pairs look like {said}" in out
 
 
 def test_bad_sources_name_the_file_and_the_field(exported, tmp_path) -> None:

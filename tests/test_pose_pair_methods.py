@@ -126,6 +126,10 @@ def test_calibrate_and_detect_on_an_imported_pose_pair_set(tmp_path: Path, capsy
         ([], None),
         (["--tracking-direction", "target-to-camera"], "pass --tracking-direction camera-to-target"),
         (["--pose-direction", "flange-to-base"], "pass --pose-direction base-to-flange"),
+        (
+            ["--pose-direction", "flange-to-base", "--tracking-direction", "target-to-camera"],
+            "both inverted: they fit as well either way",
+        ),
     ],
 )
 def test_import_names_a_wrong_pose_pair_direction(tmp_path: Path, capsys, options, named) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -161,19 +162,26 @@ def _swap(value: str, a: str, b: str) -> str:
 @dataclass(frozen=True)
 class PairReading:
     """One reading of imported pose pairs: the mistake in words ("" as stated), the options that
-    select it, and the RMS translation (metres) of the board pose over the pairs at Park's solution
-    for it (inf when Park fails)."""
+    select it, the RMS translation (metres) of the board pose over the pairs at Park's solution for
+    it (inf when Park fails) and the lengths (metres) of that solution's mount and board translations."""
 
     mistake: str
     option: str
     residual_m: float
+    mount_m: float = float("nan")
+    board_m: float = float("nan")
 
 
 def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, tracking_direction: str) -> str:
     """Which reading of pose pairs fits: as stated (pairs read in robot_direction and
     tracking_direction), the robot poses inverted, the camera-to-target poses inverted, or both; in
     words, with the residual before and after (the board pose's RMS translation over the pairs at
-    Park's solution)."""
+    Park's solution).
+
+    Inverting both fits exactly as well as not, with the roles swapped: the mount comes out as the
+    board's pose in the base frame and the board's as the mount. So only readings that put the
+    camera nearer the flange than the board is to the base are taken (a camera on a flange is not
+    across the cell from it), unless none does."""
     other_robot, other_tracking = _other(robot_direction), _swap(tracking_direction, *TRACKING_DIRECTIONS)
     readings = [
         ("", "", False, False),
@@ -191,9 +199,10 @@ def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, trac
             True,
         ),
     ]
-    trials = [PairReading(m, o, _pair_residual(pairs, a, z)) for m, o, a, z in readings]
-    stated, best = trials[0], min(trials[1:], key=lambda t: t.residual_m)
-    if best.residual_m < MISTAKE_RATIO * stated.residual_m:
+    trials = [_pair_reading(pairs, m, o, a, z) for m, o, a, z in readings]
+    stated = trials[0]
+    best = min([t for t in trials if t.mount_m < t.board_m] or trials, key=lambda t: t.residual_m)
+    if best is not stated and best.residual_m < MISTAKE_RATIO * stated.residual_m:
         after = f"{1e3 * best.residual_m:.3g} mm"
         change = (
             f"as stated Park finds no solution, read so the board pose's spread is {after}"
@@ -201,13 +210,23 @@ def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, trac
             else f"the board pose's spread drops from {1e3 * stated.residual_m:.3g} mm to {after}"
         )
         return f"the pose pairs look like {best.mistake}: {change}; pass {best.option}"
+    if best is not stated and not stated.mount_m < stated.board_m:
+        return (
+            f"the pose pairs look like {best.mistake}: they fit as well either way (board pose spread "
+            f"{1e3 * stated.residual_m:.3g} mm as stated, {1e3 * best.residual_m:.3g} mm read so), but as "
+            f"stated the camera sits {stated.mount_m:.2f} m from the flange and the board "
+            f"{stated.board_m:.2f} m from the base, read so {best.mount_m:.2f} m and {best.board_m:.2f} m; "
+            f"pass {best.option}"
+        )
     return (
         f"the pose pairs fit the stated directions (the board pose's spread {1e3 * stated.residual_m:.3g} mm "
         "RMS); none of the common mistakes fits better"
     )
 
 
-def _pair_residual(pairs: list[PosePair], invert_robot: bool, invert_tracking: bool) -> float:
+def _pair_reading(
+    pairs: list[PosePair], mistake: str, option: str, invert_robot: bool, invert_tracking: bool
+) -> PairReading:
     read = [
         PosePair(
             p.frame,
@@ -219,8 +238,11 @@ def _pair_residual(pairs: list[PosePair], invert_robot: bool, invert_tracking: b
     try:
         X, B = opencv_pose_pairs(read, "opencv-park")
     except (CalibrationInputError, np.linalg.LinAlgError, ValueError):
-        return float("inf")
-    return PosePairModel(read, PAIR_NOISE_FREE).rms(X, B)[0]
+        return PairReading(mistake, option, float("inf"))
+    residual = PosePairModel(read, PAIR_NOISE_FREE).rms(X, B)[0]
+    return PairReading(
+        mistake, option, residual, float(np.linalg.norm(X[:3, 3])), float(np.linalg.norm(B[:3, 3]))
+    )
 
 
 def check_joint_order(
@@ -262,3 +284,45 @@ def _joint_residual_deg(T_base_flange: np.ndarray, joints: np.ndarray, kinematic
     return float(
         np.degrees(np.sqrt(np.mean(np.square(angles(np.asarray(T_base_flange)[:, :3, :3]) - by_joints))))
     )
+
+
+def check_board_layout(problem: CalibrationProblem) -> str:
+    """Whether the board file's marker layout fits the images, or fits them mirrored (the markers'
+    centres reflected left to right or top to bottom about the board's origin, each marker's own
+    points kept, as a board file written in a frame with x or y the other way would be); in words,
+    with the RMS pixel residual of each frame's board pose (PnP) before and after. A board of
+    one-point markers mirrored is the same points seen from behind, a rigid change the board pose
+    absorbs: nothing to name."""
+    stated = _board_residual_px(problem, np.ones(3))
+    readings = [
+        ("left to right (x)", np.array([-1.0, 1.0, 1.0])),
+        ("top to bottom (y)", np.array([1.0, -1.0, 1.0])),
+    ]
+    words, residual = min(((w, _board_residual_px(problem, m)) for w, m in readings), key=lambda t: t[1])
+    if residual < MISTAKE_RATIO * stated:
+        return (
+            f"the board file's marker layout looks mirrored {words}: the residual of the board poses drops "
+            f"from {stated:.3g} px to {residual:.3g} px with the markers' centres reflected; correct the "
+            "board file's marker centres"
+        )
+    return f"the board file's layout fits the images ({stated:.2g} px RMS residual of the board poses)"
+
+
+def _board_residual_px(problem: CalibrationProblem, mirror: np.ndarray) -> float:
+    """RMS pixel residual of each frame's PnP board pose, the markers' centres scaled by mirror (3,)."""
+    K, dist = problem.intrinsics.K, np.array(problem.intrinsics.dist, dtype=np.float64)
+    squared, count = 0.0, 0
+    for frame in problem.frames:
+        points = []
+        for m in frame.markers:
+            center = m.corners_board.mean(axis=0)
+            points.append(m.corners_board - center + mirror * center)
+        object_points = np.concatenate(points)
+        image_points = np.concatenate([m.corners_px for m in frame.markers])
+        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+        if not ok:
+            return float("inf")
+        projected = cv2.projectPoints(object_points, rvec, tvec, K, dist)[0].reshape(-1, 2)
+        squared += float(np.sum((projected - image_points) ** 2))
+        count += len(image_points)
+    return float(np.sqrt(squared / max(count, 1)))

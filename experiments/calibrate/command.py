@@ -298,10 +298,10 @@ def calibrate_dataset(
 
 def convention_lines(dataset: Dataset, problem: CalibrationProblem, results: list[Result]) -> list[str]:
     """For an imported dataset whose poses some method fits poorly (RMS over POOR_FIT_PX) or not at
-    all, the convention check of its pose numbers (estimator.solve.convention_check): the lines to
-    print."""
+    all, the convention check of its pose numbers and the board layout check
+    (estimator.solve.convention_check): the lines to print."""
     from estimator.io.pose_file import PoseConvention
-    from estimator.solve.convention_check import check_pose_convention
+    from estimator.solve.convention_check import check_board_layout, check_pose_convention
 
     record = dataset.metadata.get("provenance") or {}
     poor = [r for r in results if isinstance(r, MethodFailure) or r.residual_rms_px > POOR_FIT_PX]
@@ -314,7 +314,10 @@ def convention_lines(dataset: Dataset, problem: CalibrationProblem, results: lis
         if isinstance(poor[0], MethodFailure)
         else f"{poor[0].method} leaves {poor[0].residual_rms_px:.3g} px RMS"
     )
-    return [f"convention check ({why}, a poor fit): {report.message}"]
+    return [
+        f"convention check ({why}, a poor fit): {report.message}",
+        f"board check: {check_board_layout(problem)}",
+    ]
 
 
 def run(args: argparse.Namespace) -> int:
