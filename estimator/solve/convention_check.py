@@ -7,6 +7,10 @@ the numbers of a pose file and the convention they were read with, the check rea
 mistaken convention (alternative_conventions), calibrates each with OpenCV's Park method on the
 problem's detected board (cheap, no noise model) and compares the RMS pixel residual: a mistake
 is named when its residual is below MISTAKE_RATIO of the stated convention's.
+
+The same is done for the other common mistakes: pose pairs with the robot or the tracking poses
+inverted, or both (check_pose_pair_directions); a UR arm's joints in the ROS driver's order
+(check_joint_order); a board file whose marker layout is mirrored (check_board_layout).
 """
 
 from __future__ import annotations
