@@ -14,6 +14,7 @@ import pytest
 from estimator.io.dataset import DatasetWriter, load_dataset
 from estimator.io.intrinsics_file import write_opencv_intrinsics
 from estimator.io.layouts import (
+    JointFile,
     LayoutError,
     read_easy_handeye_samples,
     read_folder,
@@ -21,7 +22,7 @@ from estimator.io.layouts import (
     write_folder,
     write_visp,
 )
-from estimator.io.pose_file import PoseConvention
+from estimator.io.pose_file import PoseConvention, PoseFileError
 from estimator.observe.observations import observe_dataset
 from estimator.observe.pose_pairs import PosePair, read_pose_pairs
 from estimator.solve.calibration import MethodOptions
@@ -301,6 +302,33 @@ def test_bad_sources_name_the_file_and_the_field(exported, tmp_path) -> None:
         == 2
     )
     assert not (tmp_path / "x").exists()
+
+
+def test_bad_joint_files_name_the_file_and_the_field(exported, tmp_path) -> None:
+    images, poses = exported["folder"] / "images", exported["folder"] / "poses.csv"
+    lines = (exported["folder"] / "joints.csv").read_text().splitlines()
+    joints = tmp_path / "joints.csv"
+    joints.write_text("\n".join(lines[:-1]) + "\n")
+    with pytest.raises(LayoutError, match=r"joints.csv: no joints for image 000016.png"):
+        read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
+    joints.write_text("\n".join(line.split(",", 1)[1] for line in lines[:5]) + "\n")
+    with pytest.raises(LayoutError, match="joints.csv has 4 rows of joints but there are 17 images"):
+        read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
+    joints.write_text(
+        "\n".join([lines[0], lines[1].replace(lines[1].split(",")[3], "nan"), *lines[2:]]) + "\n"
+    )
+    with pytest.raises(LayoutError, match="the joints of image 000000.png are not finite"):
+        read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
+    joints.write_text("\n".join(",".join(line.split(",")[:4]) for line in lines) + "\n")
+    with pytest.raises(
+        LayoutError, match="joint order 'ros-driver' is a UR arm's, for six joints; the file has 3"
+    ):
+        read_folder(images, poses, CONVENTION, joint_file=JointFile(joints, order="ros-driver"))
+    three = read_folder(images, poses, CONVENTION, joint_file=JointFile(joints, unit="deg"))
+    assert three.joints.shape == (17, 3)  # any count of joints in the arm's order
+    joints.write_text("image,q1\n000000.png,zero\n")
+    with pytest.raises(PoseFileError, match=r"joints.csv: line 2, column 'q1': not a number: 'zero'"):
+        read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
 
 
 def test_import_without_camera_or_board_is_refused(exported, tmp_path, capsys) -> None:
