@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from estimator.geometry.camera import project
-from estimator.geometry.kinematics import IK_RESTARTS, forward, solve_ik
+from estimator.geometry.kinematics import IK_RESTARTS, forward, has_ur_structure, solve_ik, ur_ik_solutions
 from estimator.geometry.transforms import invert
 from estimator.geometry.waypoints import Waypoint, WaypointRejected
 from estimator.io.dataset import Frame, GroundTruth
@@ -275,8 +275,8 @@ class SimCell:
     def _ik_candidates(self, waypoint: Waypoint) -> Iterator[np.ndarray]:
         """Joint solutions for the waypoint, the smallest move from the current joints first.
 
-        The current joints are tried as the IK seed first; the fixed restarts
-        only when that fails or asks for a large move.
+        A UR arm's nominal model: every closed-form solution. Otherwise the current joints are tried
+        as the IK seed first; the fixed restarts only when that fails or asks for a large move.
         """
         kin = self.cell.kinematics
         if waypoint.joints is not None:
@@ -284,6 +284,10 @@ class SimCell:
             if np.any(q < kin.q_lower) or np.any(q > kin.q_upper):
                 raise WaypointRejected("joint target outside the joint limits")
             yield q
+            return
+        if has_ur_structure(kin):
+            solutions = ur_ik_solutions(kin, waypoint.T_base_flange, self.joints)
+            yield from sorted(solutions, key=lambda q: float(np.max(np.abs(q - self.joints))))
             return
         first = solve_ik(kin, waypoint.T_base_flange, self.joints)
         tried = []

@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import mujoco
 import numpy as np
 import pytest
 
 from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import ROBOTS, forward, jacobian, solve_ik
+from estimator.geometry.kinematics import (
+    ROBOTS,
+    forward,
+    has_ur_structure,
+    jacobian,
+    solve_ik,
+    solve_ik_nearest,
+    ur_ik_solutions,
+)
 from estimator.geometry.transforms import invert, make_transform, pose_error
 from estimator.io.models import models_dir
 from estimator.targets.kinds import load_board
@@ -81,3 +91,37 @@ def test_ik_reports_an_unreachable_pose() -> None:
     kin = ROBOTS["ur5"]
     target = make_transform(np.eye(3), [2.0, 0.0, 1.0])
     assert not solve_ik(kin, target, np.zeros(6)).converged
+
+
+@pytest.mark.parametrize("robot", ["ur5", "ur5e"])
+def test_closed_form_ik_finds_every_configuration(robot: str) -> None:
+    """From random joints: every closed-form solution reaches the pose within the limits, the
+    joints the pose came from are among them (each angle at the turn nearest), up to 8, no repeats;
+    solve_ik_nearest picks the one that moves the joints least."""
+    kin = ROBOTS[robot]
+    assert has_ur_structure(kin)
+    rng = np.random.default_rng(5)
+    counts = []
+    for _ in range(100):
+        q_true = rng.uniform(-np.pi, np.pi, 6)
+        target = forward(kin, q_true)
+        solutions = ur_ik_solutions(kin, target, q_true)
+        counts.append(len(solutions))
+        assert any(np.allclose(q, q_true, atol=1e-7) for q in solutions)
+        for q in solutions:
+            assert np.all(q >= kin.q_lower) and np.all(q <= kin.q_upper)
+            dt, dr = pose_error(forward(kin, q), target)
+            assert dt < 1e-9 and dr < 1e-9
+        np.testing.assert_allclose(solve_ik_nearest(kin, target, q_true + 0.05), q_true, atol=1e-7)
+    assert max(counts) == 8 and np.median(counts) == 8
+    assert ur_ik_solutions(kin, make_transform(np.eye(3), [2.0, 0.0, 1.0]), np.zeros(6)) == []
+
+
+def test_an_arm_off_the_nominal_model_is_not_solved_in_closed_form() -> None:
+    kin = ROBOTS["ur5"]
+    offset = replace(kin, theta_offset=(0.001, 0.0, 0.0, 0.0, 0.0, 0.0))
+    twisted = replace(kin, alpha=(kin.alpha[0] + 1e-4, *kin.alpha[1:]))
+    assert not has_ur_structure(offset) and not has_ur_structure(twisted)
+    q = np.array([0.3, -1.2, 1.4, -0.5, 1.1, 0.2])
+    # solve_ik_nearest still solves them, from the seed
+    np.testing.assert_allclose(solve_ik_nearest(offset, forward(offset, q), q + 0.05), q, atol=1e-7)

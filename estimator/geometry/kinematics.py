@@ -197,8 +197,12 @@ IK_RESTARTS = np.array(
 
 
 def solve_ik_nearest(kin: URKinematics, T_base_flange: np.ndarray, q_seed: np.ndarray) -> np.ndarray | None:
-    """Joints (6,) reaching T_base_flange: from q_seed if that converges, else the solution from
-    IK_RESTARTS that moves the joints least from q_seed; None when none converges."""
+    """Joints (6,) reaching T_base_flange that move the joints least from q_seed (the largest joint
+    move): of every closed-form solution for a UR arm's nominal model (ur_ik_solutions); otherwise
+    from q_seed if that converges, else of the solutions from IK_RESTARTS. None when none is found."""
+    if has_ur_structure(kin):
+        solutions = ur_ik_solutions(kin, T_base_flange, q_seed)
+        return min(solutions, key=lambda q: float(np.max(np.abs(q - q_seed)))) if solutions else None
     first = solve_ik(kin, T_base_flange, q_seed)
     if first.converged:
         return first.q
@@ -206,3 +210,70 @@ def solve_ik_nearest(kin: URKinematics, T_base_flange: np.ndarray, q_seed: np.nd
     if not solutions:
         return None
     return min(solutions, key=lambda q: float(np.max(np.abs(q - q_seed))))
+
+
+def has_ur_structure(kin: URKinematics) -> bool:
+    """Whether kin is a UR arm's nominal DH model (twists pi/2, 0, 0, pi/2, -pi/2, 0; a1 = a4 = a5 = a6
+    = 0; d2 = d3 = 0; no joint offsets), for which ur_ik_solutions is exact."""
+    return (
+        np.allclose(kin.alpha, (_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0), rtol=0, atol=1e-12)
+        and kin.a[0] == kin.a[3] == kin.a[4] == kin.a[5] == 0.0
+        and kin.d[1] == kin.d[2] == 0.0
+        and not any(kin.theta_offset)
+    )
+
+
+def ur_ik_solutions(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray) -> list[np.ndarray]:
+    """Every joint solution (6,) within the limits of a UR arm (has_ur_structure) reaching T_base_flange,
+    in closed form (up to 8: shoulder, wrist and elbow each one way or the other), each angle the
+    turn of it nearest q_near's, then refined by solve_ik; those that converge, without repeats."""
+    a2, a3, d4, d6 = kin.a[1], kin.a[2], kin.d[3], kin.d[5]
+    R, p = T_base_flange[:3, :3], T_base_flange[:3, 3]
+    wrist = p - d6 * R[:, 2]  # origin of DH frame 5
+    radius = math.hypot(wrist[0], wrist[1])
+    if radius < abs(d4):
+        return []
+    psi, phi = math.atan2(wrist[1], wrist[0]), math.asin(d4 / radius)
+    solutions: list[np.ndarray] = []
+    for q1 in (psi + phi, psi + math.pi - phi):
+        z1 = np.array([math.sin(q1), -math.cos(q1), 0.0])
+        c5 = float(np.clip(z1 @ R[:, 2], -1.0, 1.0))
+        for q5 in (math.acos(c5), -math.acos(c5)):
+            s5 = math.sin(q5)
+            if abs(s5) < 1e-9:
+                q6 = float(q_near[5])  # wrist singular: any q6, keep the current one
+            else:
+                v = R.T @ z1
+                q6 = math.atan2(-v[1] / s5, v[0] / s5)
+            frames = dh_frames(kin, np.array([q1, 0.0, 0.0, 0.0, q5, q6]))
+            A1, A5, A6 = frames[1], np.linalg.inv(frames[4]) @ frames[5], np.linalg.inv(frames[5]) @ frames[6]
+            T14 = np.linalg.inv(A1) @ T_base_flange @ np.linalg.inv(A5 @ A6)
+            x, y = T14[0, 3], T14[1, 3]
+            c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
+            if abs(c3) > 1.0:
+                continue
+            for q3 in (math.acos(c3), -math.acos(c3)):
+                q2 = math.atan2(y, x) - math.atan2(a3 * math.sin(q3), a2 + a3 * math.cos(q3))
+                q4 = math.atan2(T14[1, 0], T14[0, 0]) - q2 - q3
+                q = _nearest_turns(kin, np.array([q1, q2, q3, q4, q5, q6]), q_near)
+                if q is None:
+                    continue
+                refined = solve_ik(kin, T_base_flange, q)
+                if refined.converged and not any(np.allclose(refined.q, s, atol=1e-6) for s in solutions):
+                    solutions.append(refined.q)
+    return solutions
+
+
+def _nearest_turns(kin: URKinematics, q: np.ndarray, q_near: np.ndarray) -> np.ndarray | None:
+    """q (6,) with each angle moved by whole turns to the one within the limits nearest q_near's;
+    None when an angle has no turn within them."""
+    out = np.empty(6)
+    for i in range(6):
+        turns = (
+            q[i] + 2.0 * np.pi * np.round((q_near[i] - q[i]) / (2.0 * np.pi)) + 2.0 * np.pi * np.arange(-1, 2)
+        )
+        inside = turns[(turns >= kin.q_lower[i]) & (turns <= kin.q_upper[i])]
+        if inside.size == 0:
+            return None
+        out[i] = inside[np.argmin(np.abs(inside - q_near[i]))]
+    return out
