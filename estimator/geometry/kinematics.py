@@ -14,6 +14,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from estimator.geometry.transforms import invert
+
 
 @dataclass(frozen=True)
 class URKinematics:
@@ -246,8 +248,8 @@ def ur_ik_solutions(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.nda
                 v = R.T @ z1
                 q6 = math.atan2(-v[1] / s5, v[0] / s5)
             frames = dh_frames(kin, np.array([q1, 0.0, 0.0, 0.0, q5, q6]))
-            A1, A5, A6 = frames[1], np.linalg.inv(frames[4]) @ frames[5], np.linalg.inv(frames[5]) @ frames[6]
-            T14 = np.linalg.inv(A1) @ T_base_flange @ np.linalg.inv(A5 @ A6)
+            # T_1_4 = inv(T_0_1) T_base_flange inv(T_4_6), T_4_6 = inv(T_0_4) T_0_6 (rigid inverses)
+            T14 = invert(frames[1]) @ T_base_flange @ invert(invert(frames[4]) @ frames[6])
             x, y = T14[0, 3], T14[1, 3]
             c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
             if abs(c3) > 1.0:
@@ -259,7 +261,7 @@ def ur_ik_solutions(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.nda
                 if q is None:
                     continue
                 refined = solve_ik(kin, T_base_flange, q)
-                if refined.converged and not any(np.allclose(refined.q, s, atol=1e-6) for s in solutions):
+                if refined.converged and all(np.abs(refined.q - s).max() > 1e-6 for s in solutions):
                     solutions.append(refined.q)
     return solutions
 
@@ -267,13 +269,11 @@ def ur_ik_solutions(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.nda
 def _nearest_turns(kin: URKinematics, q: np.ndarray, q_near: np.ndarray) -> np.ndarray | None:
     """q (6,) with each angle moved by whole turns to the one within the limits nearest q_near's;
     None when an angle has no turn within them."""
-    out = np.empty(6)
-    for i in range(6):
-        turns = (
-            q[i] + 2.0 * np.pi * np.round((q_near[i] - q[i]) / (2.0 * np.pi)) + 2.0 * np.pi * np.arange(-1, 2)
-        )
-        inside = turns[(turns >= kin.q_lower[i]) & (turns <= kin.q_upper[i])]
-        if inside.size == 0:
-            return None
-        out[i] = inside[np.argmin(np.abs(inside - q_near[i]))]
-    return out
+    turn = 2.0 * np.pi
+    nearest = q + turn * np.round((q_near - q) / turn)
+    turns = nearest[:, None] + turn * np.array([-1.0, 0.0, 1.0])  # (6, 3)
+    inside = (turns >= np.array(kin.q_lower)[:, None]) & (turns <= np.array(kin.q_upper)[:, None])
+    if not inside.any(axis=1).all():
+        return None
+    distance = np.where(inside, np.abs(turns - q_near[:, None]), np.inf)
+    return turns[np.arange(6), np.argmin(distance, axis=1)]
