@@ -180,11 +180,11 @@ def robust_cost(r: np.ndarray, robust: bool) -> float:
 
 def gauss_newton(
     objective: BatchObjective, x0: np.ndarray, robust: bool, cost_tolerance: float = GN_COST_TOLERANCE
-) -> tuple[np.ndarray, int]:
+) -> tuple[np.ndarray, int, np.ndarray]:
     """The (Huber-weighted, with robust) least-squares optimum of the batch objective from x0:
     Gauss-Newton with step halving on the normal equations (block_arrow.normal_solve).
     Stops when a step lowers the cost by less than cost_tolerance of it (or cannot lower it).
-    Returns the parameters and the iterations run."""
+    Returns the parameters, the iterations run and the residuals at the parameters."""
     layout = objective.layout
     x, r = x0, objective.residuals(x0)
     current = robust_cost(r, robust)
@@ -210,15 +210,16 @@ def gauss_newton(
         x, r, previous, current = moved, r_moved, current, trial
         if np.max(np.abs(step)) < GN_STEP_TOLERANCE or previous - current < cost_tolerance * previous:
             break
-    return x, iterations
+    return x, iterations, r
 
 
 def weighted_jacobian(
-    objective: BatchObjective, params: np.ndarray, robust: bool
+    objective: BatchObjective, params: np.ndarray, robust: bool, residuals: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The residuals at params and the Jacobian whose rows carry the square root of their Huber
-    weights (robust) or are as they are: J^T J is then the information of the optimum."""
-    r = objective.residuals(params)
+    """The residuals at params (residuals, when already known) and the Jacobian whose rows carry
+    the square root of their Huber weights (robust) or are as they are: J^T J is then the
+    information of the optimum."""
+    r = objective.residuals(params) if residuals is None else residuals
     J = objective.jacobian(params)
     return r, J * np.sqrt(huber_weights(r))[:, None] if robust else J
 
@@ -241,7 +242,7 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     start, source = start_point.state, start_point.source
     objective = BatchObjective(problem, start, initial_covariance(start, options), options.prior)
     with one_blas_thread():
-        params, iterations = gauss_newton(objective, np.zeros(objective.size), options.robust)
+        params, iterations, _ = gauss_newton(objective, np.zeros(objective.size), options.robust)
         state = start.plus(params[: objective.n])
         cov = state_covariance(objective, params, options.robust)
     rejected = outliers(problem, objective.frame_residuals(params)) if options.robust else set()

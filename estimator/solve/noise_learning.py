@@ -55,6 +55,7 @@ from estimator.solve.self_calibration import (
     group_names,
     noteworthy_sizes,
 )
+from estimator.solve.stacked_prediction import StackedFrames
 
 GROUPS = ("pixels", "depth", "robot_translation", "robot_rotation")
 PRIOR_DOF = 3.0
@@ -220,12 +221,14 @@ def _objective(
 @dataclass
 class _Pass:
     """One variance-component estimation to convergence: the levels, the parameters at the
-    optimum, each group's (squares, redundancy) and the iterations run."""
+    optimum, each group's (squares, redundancy), the iterations run and the problem's stacked frames
+    (at the declared noise, for objectives of the same problem to reuse)."""
 
     levels: NoiseLevels
     params: np.ndarray
     factors: dict[str, tuple[float, float]]
     iterations: int
+    declared: StackedFrames
 
 
 def _vce(
@@ -245,8 +248,8 @@ def _vce(
         iterations += 1
         objective = _objective(plain, levels, names)
         x0 = np.zeros(objective.size) if params is None else params
-        params, _ = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
-        r, J = weighted_jacobian(objective, params, options.robust)
+        params, _, r = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
+        r, J = weighted_jacobian(objective, params, options.robust, r)
         hat = hat_diagonal(J, objective.layout)
         if iterations == 1:  # the rows and their groups are the same at every level
             groups = _row_groups(objective, problem)
@@ -262,7 +265,7 @@ def _vce(
         levels = new_levels
         if change < LEVEL_TOLERANCE:
             break
-    return _Pass(levels, params, factors, iterations)
+    return _Pass(levels, params, factors, iterations, plain.declared)
 
 
 def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
@@ -289,7 +292,8 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     names = group_names(problem, kept)
     theta = final.params[len(final.params) - len(names) :] if names else None
     adjusted = problem if theta is None else adjusted_problem(problem, theta, names)
-    objective = BatchObjective(adjusted, start, P0, options.prior, final.levels)
+    stack = first.declared if theta is None else None  # adjusted is the problem itself
+    objective = BatchObjective(adjusted, start, P0, options.prior, final.levels, stack)
     params = final.params[: objective.size]
     frame_residuals = objective.frame_residuals(params)
     if uncertainty is None:
@@ -392,7 +396,8 @@ def _nuisance_uncertainty(
 ) -> NuisanceUncertainty:
     """The covariances at final's optimum (the inverse of the normal matrix; with theta fixed, its
     state block without theta's rows and columns)."""
-    objective = _objective(BatchObjective(problem, start, P0, options.prior), final.levels, names)
+    plain = BatchObjective(problem, start, P0, options.prior, declared=final.declared)
+    objective = _objective(plain, final.levels, names)
     _, J = weighted_jacobian(objective, final.params, options.robust)
     N = J.T @ J
     p = len(names)
@@ -411,7 +416,7 @@ def _prior_distance(with_prior: BatchObjective, params: np.ndarray, options: Met
     the objective at the learned levels)."""
     p = with_prior
     objective = BatchObjective(p.problem, p.start, p.P0, None, p.levels, p.declared)
-    x, _ = gauss_newton(objective, params, options.robust)
+    x, _, _ = gauss_newton(objective, params, options.robust)
     return prior_conflict(
         p.start.plus(x[: objective.n]), state_covariance(objective, x, options.robust), options.prior
     )

@@ -38,7 +38,10 @@ class StackedFrames:
         if pixel_scale == 1.0 and depth_scale == 1.0:
             return self
         row_scale = np.where(self.pixel_row, 1.0 / pixel_scale, 1.0 / depth_scale)
-        return replace(self, whitening=sparse.diags_array(row_scale, format="csr") @ self.whitening)
+        W = self.whitening
+        entries_per_row = np.diff(W.indptr)
+        data = W.data * np.repeat(row_scale, entries_per_row)  # each entry times its row's scale
+        return replace(self, whitening=sparse.csr_array((data, W.indices, W.indptr), shape=W.shape))
 
     @property
     def frame_row_counts(self) -> np.ndarray:

@@ -147,7 +147,7 @@ def verify_mount(
     options = MethodOptions()
     objective = BatchObjective(problem, start, initial_covariance(start, options), None)
     with one_blas_thread():
-        params, _ = gauss_newton(objective, np.zeros(objective.size), options.robust)
+        params, _, _ = gauss_newton(objective, np.zeros(objective.size), options.robust)
         cov_state = state_covariance(objective, params, options.robust)
     state = start.plus(params[: objective.n])
     residual = np.concatenate(objective.frame_residuals(params))
