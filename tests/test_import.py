@@ -181,6 +181,7 @@ def test_calibrate_names_the_convention_mistake_of_a_poor_fit(exported, tmp_path
         ("ros-driver", (), "the joints look like the ROS driver's order (elbow first)"),
         ("ros-driver", ("--joint-order", "ros-driver"), "the joints fit the robot poses in the ROS driver's"),
         ("arm", ("--joint-order", "ros-driver"), "the joints look like the arm's order (base joint first)"),
+        ("arm", ("--joint-unit", "deg"), "the joints do not match the robot poses in either order"),
     ],
 )
 def test_joints_are_imported_in_the_arms_order_and_a_wrong_order_is_named(
@@ -200,7 +201,7 @@ def test_joints_are_imported_in_the_arms_order_and_a_wrong_order_is_named(
     out = capsys.readouterr().out
     assert "17 joints" not in out and "6 joints each" in out
     assert f"joint check: {said}" in out
-    if "fit" in said:  # read in the right order, the arm's joints are the rendered ones
+    if "fit the robot poses" in said:  # read in the right order, the arm's joints are the rendered ones
         source = load_dataset(exported["reference"])
         imported = load_dataset(tmp_path / "imported")
         np.testing.assert_allclose(

@@ -273,7 +273,7 @@ def check_joint_order(
     if stated_deg > JOINT_MISMATCH_DEG:
         return (
             f"the joints do not match the robot poses in either order ({stated_deg:.3g} deg RMS as stated, "
-            f"{swapped_deg:.3g} deg swapped): are --robot-model, --joint-unit and the joint file right?"
+            f"{swapped_deg:.3g} deg swapped): are they these images' joints, in --joint-unit?"
         )
     return f"the joints fit the robot poses in {words[stated_order]} ({stated_deg:.2g} deg RMS)"
 
