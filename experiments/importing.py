@@ -201,20 +201,22 @@ def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
     lines.append(f"convention check: {report.message}")
     lines.append(f"board check: {check_board_layout(problem)}")
     if "joints" in record:
-        lines.append(f"joint check: {_joint_check(dataset)}")
+        lines += _joint_check(dataset)
     return lines
 
 
-def _joint_check(dataset: Dataset) -> str:
-    """The joint-order check of an imported dataset with joints, or why it cannot run."""
-    from estimator.solve.convention_check import check_joint_order
+def _joint_check(dataset: Dataset) -> list[str]:
+    """The joint-order check of an imported dataset with joints (or why it cannot run) and, when the
+    poses are the joints' kinematics in other base or tool frames, which."""
+    from estimator.solve.convention_check import check_joint_frames, check_joint_order
     from estimator.solve.problem import dataset_arm
 
     arm = dataset_arm(dataset)
     if arm is None:
-        return "not run: it needs a UR arm's six joints per image and --robot-model"
+        return ["joint check: not run: it needs a UR arm's six joints per image and --robot-model"]
     T_base_flange = np.array([row["T_base_flange"] for row in dataset.rows])
     joints = np.array([arm.joints[i] for i in range(len(dataset.rows))])
-    return check_joint_order(
-        T_base_flange, joints, arm.kinematics, dataset.metadata["provenance"]["joints"]["order"]
-    )
+    order = dataset.metadata["provenance"]["joints"]["order"]
+    lines = [f"joint check: {check_joint_order(T_base_flange, joints, arm.kinematics, order)}"]
+    frames = check_joint_frames(T_base_flange, joints, arm.kinematics)
+    return lines + ([f"frame check: {frames}"] if frames else [])

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
+from estimator.geometry.transforms import make_transform
 from estimator.io.dataset import DatasetWriter, load_dataset
 from estimator.io.intrinsics_file import write_opencv_intrinsics
 from estimator.io.layouts import (
@@ -22,7 +24,7 @@ from estimator.io.layouts import (
     write_folder,
     write_visp,
 )
-from estimator.io.pose_file import PoseConvention, PoseFileError
+from estimator.io.pose_file import PoseConvention, PoseFileError, read_pose_file, values_from_poses
 from estimator.observe.observations import observe_dataset
 from estimator.observe.pose_pairs import PosePair, read_pose_pairs
 from estimator.solve.calibration import MethodOptions
@@ -209,12 +211,34 @@ def test_joints_are_imported_in_the_arms_order_and_a_wrong_order_is_named(
         )
 
 
+def test_poses_in_ros_base_link_are_named_by_the_frame_check(exported, tmp_path, capsys) -> None:
+    """The rendered set's poses given from ROS's base_link (the controller's base turned 180 degrees
+    about z) with their joints: the frame check says so; as the controller gives them it says nothing."""
+    names, T_base_flange = read_pose_file(exported["folder"] / "poses.csv", CONVENTION)
+    base_link = make_transform(Rotation.from_euler("z", 180, degrees=True).as_matrix(), np.zeros(3))
+    values = values_from_poses(np.array([base_link @ T for T in T_base_flange]), CONVENTION)
+    poses = tmp_path / "poses.csv"
+    poses.write_text(
+        "image,x,y,z,a,b,c\n"
+        + "".join(
+            f"{n}," + ",".join(repr(float(x)) for x in v) + "\n" for n, v in zip(names, values, strict=True)
+        )
+    )
+    joints = ("--joints", str(exported["folder"] / "joints.csv"), "--robot-model", "ur5")
+    for source, said in ((exported["folder"] / "poses.csv", False), (poses, True)):
+        argv = _import(exported, tmp_path / "imported", "folder", *FOLDER_OPTIONS, *FLANGE_TO_BASE, *joints)
+        argv[argv.index("--poses") + 1] = str(source)
+        assert main([*argv, "--force"]) == 0
+        out = capsys.readouterr().out
+        assert "joint check: the joints fit the robot poses in the arm's order" in out
+        frame = (
+            "frame check: the robot poses are the joints' flange poses in another base frame (turned 180 deg"
+        )
+        assert (frame in out) == said, out
+
+
 def test_pose_pairs_import_back_as_written(tmp_path, capsys) -> None:
     rng = np.random.default_rng(2)
-    from scipy.spatial.transform import Rotation
-
-    from estimator.geometry.transforms import make_transform
-
     pairs = [
         PosePair(
             i,

@@ -10,7 +10,8 @@ is named when its residual is below MISTAKE_RATIO of the stated convention's.
 
 The same is done for the other common mistakes: pose pairs with the robot or the tracking poses
 inverted, or both (check_pose_pair_directions); a UR arm's joints in the ROS driver's order
-(check_joint_order); a board file whose marker layout is mirrored (check_board_layout).
+(check_joint_order) or poses in other base and tool frames than the joints' kinematics
+(check_joint_frames); a board file whose marker layout is mirrored (check_board_layout).
 """
 
 from __future__ import annotations
@@ -22,11 +23,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
-from estimator.geometry.transforms import invert
+from estimator.geometry.transforms import invert, pose_error
 from estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
 from estimator.observe.pose_pairs import PosePair
 from estimator.solve.baselines import opencv_calibrate
 from estimator.solve.calibration import MethodOptions
+from estimator.solve.initialise import mean_pose
 from estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
@@ -35,6 +37,11 @@ MISTAKE_RATIO = 0.3
 # Joints whose rotations between frames differ from the poses' by more than this (degrees RMS) match
 # them in no order: a UR arm's nominal kinematics are within about 0.3 degrees of the real arm's.
 JOINT_MISMATCH_DEG = 1.0
+# Robot poses within this of the kinematics' flange poses of their joints (metres, radians) are in
+# the kinematics' own frames: a controller computes its poses from its joints with them, so the two
+# agree to its rounding and any noise added to either.
+JOINT_FRAME_TOLERANCE = (1e-3, np.radians(0.1))
+JOINT_FRAME_ROUNDS = 10
 # Which way a pose pair's board pose maps: camera-to-target is T_cam_board (easy_handeye2's tracking).
 TRACKING_DIRECTIONS = ("camera-to-target", "target-to-camera")
 _OPTION = {
@@ -330,3 +337,45 @@ def _board_residual_px(problem: CalibrationProblem, mirror: np.ndarray) -> float
         squared += float(np.sum((projected - image_points) ** 2))
         count += len(image_points)
     return float(np.sqrt(squared / max(count, 1)))
+
+
+def check_joint_frames(T_base_flange: np.ndarray, joints: np.ndarray, kinematics: URKinematics) -> str | None:
+    """Whether the robot poses (N, 4, 4) are the kinematics' flange poses of the joints (N, 6, the
+    arm's order) in other base and tool frames, T_i = L FK(q_i) R with L or R not the identity (a ROS
+    tf pose from base_link is the controller's base turned 180 degrees about z): in words, or None
+    when they are the kinematics' own (within JOINT_FRAME_TOLERANCE) or no such L and R fit."""
+    F = [forward(kinematics, q) for q in joints]
+    if _largest_error(T_base_flange, F, np.eye(4), np.eye(4)) < 1.0:
+        return None
+    L, R = np.eye(4), np.eye(4)
+    for _ in range(JOINT_FRAME_ROUNDS):  # alternate: each is a mean given the other
+        L = mean_pose([T @ invert(f @ R) for T, f in zip(T_base_flange, F, strict=True)])
+        R = mean_pose([invert(L @ f) @ T for T, f in zip(T_base_flange, F, strict=True)])
+    if _largest_error(T_base_flange, F, L, R) > 1.0:
+        return None
+    parts = [
+        f"{what} frame {_describe_transform(T)}"
+        for what, T in (("base", L), ("tool", R))
+        if _largest_error([T], [np.eye(4)], np.eye(4), np.eye(4)) >= 1.0
+    ]
+    return (
+        f"the robot poses are the joints' flange poses in another {' and '.join(parts)} than the arm's "
+        "kinematics use (a ROS pose from base_link has the base turned 180 deg about z); the arm's "
+        "self-calibration assumes the kinematics' frames: give the poses in them (UR's base and flange)"
+    )
+
+
+def _largest_error(T: list[np.ndarray], F: list[np.ndarray], L: np.ndarray, R: np.ndarray) -> float:
+    """The largest of T_i against L F_i R, in units of JOINT_FRAME_TOLERANCE (its worse part)."""
+    errors = [pose_error(t, L @ f @ R) for t, f in zip(T, F, strict=True)]
+    return max(max(m / JOINT_FRAME_TOLERANCE[0], r / JOINT_FRAME_TOLERANCE[1]) for m, r in errors)
+
+
+def _describe_transform(T: np.ndarray) -> str:
+    rotvec = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    angle = float(np.linalg.norm(rotvec))
+    axis = rotvec / angle if angle > 0.0 else np.array([0.0, 0.0, 1.0])
+    return (
+        f"(turned {np.degrees(angle):.3g} deg about [{axis[0]:.2f} {axis[1]:.2f} {axis[2]:.2f}], "
+        f"moved {1e3 * np.linalg.norm(T[:3, 3]):.3g} mm)"
+    )
