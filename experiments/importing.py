@@ -4,7 +4,8 @@ easy_handeye2 .samples file of pose pairs. Image imports are detected at once (t
 cached as `hec detect` would) and the robot poses' convention is checked: if a common mistake fits
 the data much better than the stated convention, hec says which and the option that selects it. The
 board file's layout is checked against the images (a mirrored one is named) and imported joints
-against the robot poses (joints in the ROS driver's order are named)."""
+against the robot poses (joints in the ROS driver's order, or poses in other base or tool frames
+than the joints' kinematics, are named)."""
 
 from __future__ import annotations
 
@@ -180,8 +181,8 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
 
 
 def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
-    """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention:
-    the lines to print."""
+    """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention,
+    its board file and its joints (if any): the lines to print."""
     from estimator.solve.convention_check import check_board_layout, check_pose_convention
     from estimator.solve.problem import build_problem, dataset_robot_noise
     from estimator.targets.qr import DetectorSettings
