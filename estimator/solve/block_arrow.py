@@ -42,14 +42,13 @@ def schur_system(J: np.ndarray, layout: BlockLayout) -> SchurSystem:
     """The Schur complement of J^T J (J: (rows, size) with layout's structure)."""
     G = J[:, layout.global_columns]
     S = G.T @ G
-    K, D_inv = [], []
-    for rows, cols in layout.local:
-        L = J[rows, cols]
-        Di = np.linalg.inv(L.T @ L)
+    blocks = [J[rows, cols] for rows, cols in layout.local]
+    D_inv = list(np.linalg.inv(np.array([L.T @ L for L in blocks]))) if blocks else []  # one call, all frames
+    K = []
+    for (rows, _), L, Di in zip(layout.local, blocks, D_inv, strict=True):
         Ki = Di @ (L.T @ G[rows])
         S -= (G[rows].T @ L) @ Ki
         K.append(Ki)
-        D_inv.append(Di)
     return SchurSystem(layout, S, K, D_inv)
 
 
