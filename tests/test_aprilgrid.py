@@ -58,6 +58,8 @@ def test_board_file_reads_back_and_lays_out_kalibrs_grid(board: AprilGridBoard, 
         ({"tag_cols": 9}, "does not fit on the sheet"),
         ({"tag_spacing": 0.1}, "the corner fit needs"),
         ({"size_m": [0.4]}, "field 'size_m' should be [width, height] > 0"),
+        ({"corner_squares": "yes"}, "field 'corner_squares' must be true or false"),
+        ({"corner_squares": True, "size_m": [0.335, 0.22]}, "does not fit on the sheet"),  # fits without them
     ],
 )
 def test_bad_fields_are_named(board: AprilGridBoard, change: dict, message: str) -> None:
@@ -132,3 +134,49 @@ def test_corner_covariance_matches_the_scatter_of_noisy_fits(board: AprilGridBoa
         ratios.append(np.trace(scatter) / np.trace(reported))
     assert len(fits) == len(board.marker_ids)
     assert 0.6 <= float(np.median(ratios)) <= 1.6  # the QR fit's bounds (test_detect)
+
+
+@pytest.fixture(scope="module")
+def kalibr_print(board: AprilGridBoard) -> AprilGridBoard:
+    """The same grid as Kalibr prints it, with its corner squares."""
+    printed = board_from_dict(board.to_dict() | {"corner_squares": True}, "kalibr")
+    assert isinstance(printed, AprilGridBoard) and printed.to_dict()["corner_squares"] is True
+    return printed
+
+
+def test_kalibrs_corner_squares_touch_each_tag_corner_from_outside(kalibr_print: AprilGridBoard) -> None:
+    sheet = kalibr_print.image(PX_PER_M, supersample=1)
+    g = kalibr_print.gap_m
+    for tag_id in (0, 7, 17):
+        for corner in kalibr_print.marker_corners(tag_id):
+            outward = np.sign(corner[:2] - kalibr_print.marker_center(tag_id)[:2])
+            inside_square = corner[:2] + outward * g / 2  # diagonally outside the corner
+            along_side = corner[:2] + outward * [g / 2, -g / 2]  # beside the tag's edge: paper
+            u, v = (
+                np.round(sheet_px(kalibr_print, np.array([[*inside_square, 0], [*along_side, 0]])))
+                .astype(int)
+                .T
+            )
+            assert sheet[v[0], u[0]] < 64 and sheet[v[1], u[1]] > 192
+
+
+@pytest.mark.parametrize("quarter_turns", [0, 1, 2, 3])
+def test_a_kalibr_print_is_fitted_with_its_squares(
+    board: AprilGridBoard, kalibr_print: AprilGridBoard, quarter_turns: int
+) -> None:
+    """Every tag and its corners on a Kalibr print; the fit's template has the squares: without them
+    the squares pull the corners most of a pixel off."""
+    H = quarter_turned(tilted_homography(kalibr_print, 0.7), quarter_turns)
+    image = warped_view(kalibr_print, H, shape=(640, 640))
+    errors = {}
+    for name, detector in (("squares", AprilGridDetector(kalibr_print)), ("plain", AprilGridDetector(board))):
+        detections = detector.detect(image)
+        assert [m.marker_id for m in detections.markers] == kalibr_print.marker_ids
+        errors[name] = np.array(
+            [
+                m.corners_px - apply(H, sheet_px(kalibr_print, kalibr_print.marker_corners(m.marker_id)))
+                for m in detections.markers
+            ]
+        )
+    assert np.abs(errors["squares"]).max() < 0.06
+    assert np.sqrt(np.mean(errors["plain"] ** 2)) > 0.4

@@ -4,9 +4,10 @@ Geometry (Kalibr's target yaml, in metres): ``tag_cols`` x ``tag_rows`` tags of 
 ``tag_size_m`` (edge to edge of the black border), ``tag_spacing`` times the side apart, each
 tag drawn with ``border_bits`` black cells around its 6 x 6 code (Kalibr prints 2), centred on
 the sheet. Tag IDs run as Kalibr's: ``first_id`` at the bottom-left, along x then up the rows.
-Kalibr also prints small black squares between the tags' corners; hec's sheet leaves them out,
-and a print with them is not supported yet: they touch each tag's corner, where OpenCV's tag finder
-and the corner fit's template expect white paper (not measured).
+Kalibr also prints black squares, ``tag_spacing`` times the side, touching each tag's four corners
+from outside (``corner_squares``: true for a Kalibr print; hec's own sheet leaves them out). The
+corner fit's template then has them too: fitted with a plain template, the squares pull the
+corners 0.74-1.0 px off (fronto-parallel sheets at 1500-4000 px/m).
 
 Corner order of every tag: bottom-left, bottom-right, top-right, top-left of the upright tag
 (counter-clockwise from the corner nearest Kalibr's origin), in hec's board frame (origin at the
@@ -77,6 +78,7 @@ class AprilGridBoard:
     tag_spacing: float
     border_bits: int = 2
     first_id: int = 0
+    corner_squares: bool = False
 
     kind = "aprilgrid"
     points_per_marker = 4
@@ -94,8 +96,15 @@ class AprilGridBoard:
 
     @property
     def visible_margin_m(self) -> float:
-        """The white cells around a tag the corner fit compares (qr_fit's template quiet zone)."""
-        return TEMPLATE_QUIET_MODULES * self.feature_m
+        """The paper around a tag the corner fit compares (qr_fit's template quiet zone) and, with
+        corner_squares, the squares."""
+        quiet = TEMPLATE_QUIET_MODULES * self.feature_m
+        return max(quiet, self.gap_m) if self.corner_squares else quiet
+
+    @property
+    def gap_m(self) -> float:
+        """The paper between two tags, and the side of a corner square."""
+        return self.tag_spacing * self.tag_size_m
 
     @property
     def grid_size_m(self) -> tuple[float, float]:
@@ -138,10 +147,16 @@ class AprilGridBoard:
     def image(self, px_per_m: float, supersample: int = 4) -> np.ndarray:
         """The sheet as an (H, W) uint8 image (sheet.draw_sheet)."""
         blocks = []
+        square = np.ones((1, 1), dtype=bool)
         for marker_id in self.marker_ids:
             cells = tag_cells(marker_id, self.border_bits)
             left, top = self.marker_corners(marker_id)[3, :2]
             blocks.append(CellBlock(cells, float(left), float(top), self.feature_m))
+            if self.corner_squares:  # outside each corner: left of it or right, above or below
+                for corner in self.marker_corners(marker_id)[:, :2]:
+                    offset = (corner - self.marker_center(marker_id)[:2] > 0) * self.gap_m
+                    x, y = corner[0] - self.gap_m + offset[0], corner[1] + offset[1]
+                    blocks.append(CellBlock(square, float(x), float(y), self.gap_m))
         return draw_sheet(self.size_m, blocks, px_per_m, supersample)
 
     def to_dict(self) -> dict:
@@ -157,7 +172,7 @@ class AprilGridBoard:
             "tag_spacing": self.tag_spacing,
             "border_bits": self.border_bits,
             "first_id": self.first_id,
-        }
+        } | ({"corner_squares": True} if self.corner_squares else {})
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> AprilGridBoard:
@@ -172,6 +187,7 @@ class AprilGridBoard:
             tag_spacing=positive_field(d, "tag_spacing", source),
             border_bits=integer_field(d, "border_bits", source, least=1, default=2),
             first_id=integer_field(d, "first_id", source, least=0, default=0),
+            corner_squares=_boolean_field(d, "corner_squares", source),
         )
         last = board.marker_ids[-1]
         if last >= _dictionary().bytesList.shape[0]:
@@ -186,13 +202,20 @@ class AprilGridBoard:
                 f"{source}: the grid ({width * 1e3:.1f} x {height * 1e3:.1f} mm) with {margin * 1e3:.1f} mm "
                 f"of white around it does not fit on the sheet 'size_m' {list(board.size_m)}"
             )
-        gap_m = board.tag_spacing * board.tag_size_m
-        if gap_m < margin:
+        quiet_m = TEMPLATE_QUIET_MODULES * board.feature_m
+        if board.gap_m < quiet_m:
             raise BoardDefinitionError(
-                f"{source}: 'tag_spacing' {board.tag_spacing} leaves {gap_m * 1e3:.1f} mm between tags; the "
-                f"corner fit needs {margin * 1e3:.1f} mm ({TEMPLATE_QUIET_MODULES} cells)"
+                f"{source}: 'tag_spacing' {board.tag_spacing} leaves {board.gap_m * 1e3:.1f} mm between "
+                f"tags; the corner fit needs {quiet_m * 1e3:.1f} mm ({TEMPLATE_QUIET_MODULES} cells)"
             )
         return board
+
+
+def _boolean_field(d: dict, key: str, source: str) -> bool:
+    value = d.get(key, False)
+    if not isinstance(value, bool):
+        raise BoardDefinitionError(f"{source}: field '{key}' must be true or false, got {value!r}")
+    return value
 
 
 class AprilGridDetector:
@@ -259,6 +282,7 @@ class AprilGridDetector:
                 center_floor_px=self.center_floor_px,
                 min_correlation=s.min_correlation,
                 max_template_px_per_module=MAX_TEMPLATE_PX_PER_CELL,
+                dark_corners=self.board.corner_squares,
             )
         except MarkerFitError as exc:
             result.rejected.append(Rejection(f"tag {tag_id}: {exc}", tag_id, None, corners_tl))

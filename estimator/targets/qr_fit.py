@@ -183,11 +183,17 @@ def corner_orderings(corners_px: np.ndarray) -> list[np.ndarray]:
 
 
 @functools.lru_cache(maxsize=256)
-def _template(modules_bytes: bytes, n: int, px_per_module: int) -> np.ndarray:
-    """(S, S) float32 template: white quiet zone, black modules; module edges on pixel edges."""
+def _template(modules_bytes: bytes, n: int, px_per_module: int, dark_corners: bool = False) -> np.ndarray:
+    """(S, S) float32 template: white quiet zone, black modules; module edges on pixel edges. With
+    dark_corners, the quiet zone's four corner blocks are black (squares touching the symbol's
+    corners from outside, at least the quiet zone wide)."""
     modules = np.frombuffer(modules_bytes, dtype=bool).reshape(n, n)
     q = TEMPLATE_QUIET_MODULES
     padded = np.ones((n + 2 * q, n + 2 * q), dtype=np.float32)
+    if dark_corners:
+        for rows in (slice(0, q), slice(n + q, n + 2 * q)):
+            for cols in (slice(0, q), slice(n + q, n + 2 * q)):
+                padded[rows, cols] = 0.0
     padded[q : q + n, q : q + n] = np.where(modules, 0.0, 1.0)
     return np.kron(padded, np.ones((px_per_module, px_per_module), dtype=np.float32)) * 255.0
 
@@ -217,6 +223,7 @@ def fit_marker(
     max_iterations: int = 30,
     min_correlation: float = 0.8,
     max_template_px_per_module: int = 3,
+    dark_corners: bool = False,
 ) -> MarkerFit:
     """Refine oriented corners by aligning the marker's code to the image.
 
@@ -226,8 +233,9 @@ def fit_marker(
     corners' and the centre's covariance. The template is drawn at the image's pixels per module,
     clipped to [2, max_template_px_per_module]: a template much coarser than the image biases the
     corners (AprilTag cells of 8-11 px fitted with 3 px ones shrank the tag by 0.04 px; QR modules
-    of 3-5 px gain nothing from more). Raises MarkerFitError when the marker with its quiet zone
-    leaves the image, the fit diverges, or its correlation stays below min_correlation.
+    of 3-5 px gain nothing from more). dark_corners: black squares touch the marker's corners from
+    outside (Kalibr's AprilGrid; _template). Raises MarkerFitError when the marker with its quiet
+    zone leaves the image, the fit diverges, or its correlation stays below min_correlation.
     """
     n = modules.shape[0]
     corners_px = np.asarray(corners_px, dtype=np.float64)
@@ -236,7 +244,7 @@ def fit_marker(
     fit = fit_template(
         gray,
         corners_px,
-        _template(modules.tobytes(), n, px_per_module),
+        _template(modules.tobytes(), n, px_per_module, dark_corners),
         TemplateFrame(n * px_per_module, q * px_per_module),
         (q + 1) / n,
         corner_floor_px,
