@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import time
 from contextlib import AbstractContextManager
+from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
@@ -129,6 +130,9 @@ class BatchObjective:
 
     def residuals(self, params: np.ndarray) -> np.ndarray:
         state, pred = self._predict(params, jacobians=False)
+        return self._residuals(params, state, pred)
+
+    def _residuals(self, params: np.ndarray, state: HandEyeState, pred: StackedPrediction) -> np.ndarray:
         r = np.empty(self.row_count)
         r[: self.n] = self.prior_sqrt_info @ params[: self.n]
         if self.prior is not None:
@@ -141,7 +145,12 @@ class BatchObjective:
     def jacobian(self, params: np.ndarray) -> np.ndarray:
         """(rows, size) dense Jacobian of residuals(params); each frame's rows depend on the state
         and on that frame's delta only (the rest of the row is zero)."""
+        return self.linearise(params)[1]
+
+    def linearise(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """residuals(params) and jacobian(params) from one prediction (the same numbers)."""
         state, pred = self._predict(params, jacobians=True)
+        r = self._residuals(params, state, pred)
         to_params = state.plus_jacobian(params[: self.n])
         J = np.zeros((self.row_count, self.size))
         J[: self.n, : self.n] = self.prior_sqrt_info
@@ -156,7 +165,7 @@ class BatchObjective:
             J[rows[:, None], columns] = np.einsum("rk,rkl->rl", pred.J_flange, steps[frame])
             delta_columns = self.n + 6 * np.arange(len(self.robot_rows))[:, None, None] + np.arange(6)
             J[self.robot_rows[:, :, None], delta_columns] = self.robot_sqrt_info
-        return J
+        return r, J
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
         """Whitened measurement residual of each frame at params."""
@@ -178,26 +187,37 @@ def robust_cost(r: np.ndarray, robust: bool) -> float:
     return float(np.sum(np.where(a <= HUBER_SCALE, a * a, 2 * HUBER_SCALE * a - HUBER_SCALE**2)))
 
 
+@dataclass
+class GaussNewton:
+    """gauss_newton's result: the parameters, the iterations run, and the residuals and Jacobian
+    (unweighted) at the parameters."""
+
+    params: np.ndarray
+    iterations: int
+    residuals: np.ndarray
+    jacobian: np.ndarray
+
+
 def gauss_newton(
     objective: BatchObjective, x0: np.ndarray, robust: bool, cost_tolerance: float = GN_COST_TOLERANCE
-) -> tuple[np.ndarray, int, np.ndarray]:
+) -> GaussNewton:
     """The (Huber-weighted, with robust) least-squares optimum of the batch objective from x0:
     Gauss-Newton with step halving on the normal equations (block_arrow.normal_solve).
     Stops when a step lowers the cost by less than cost_tolerance of it (or cannot lower it).
-    Returns the parameters, the iterations run and the residuals at the parameters."""
+    Each point tried is linearised at once (objective.linearise): the Jacobian of an accepted point
+    is the next step's, and the last one's is returned."""
     layout = objective.layout
-    x, r = x0, objective.residuals(x0)
+    x, (r, J) = x0, objective.linearise(x0)
     current = robust_cost(r, robust)
     iterations = 0
     while iterations < GN_MAX_ITERATIONS:
         iterations += 1
-        J = objective.jacobian(x)
         root_w = np.sqrt(huber_weights(r)) if robust else np.ones_like(r)
         step = -normal_solve(J * root_w[:, None], r * root_w, layout)
         for _ in range(LINE_SEARCH_HALVINGS):
             moved = x + step
             try:
-                r_moved = objective.residuals(moved)
+                r_moved, J_moved = objective.linearise(moved)
             except OutsideModel:
                 step = 0.5 * step
                 continue
@@ -207,28 +227,29 @@ def gauss_newton(
             step = 0.5 * step
         else:
             break
-        x, r, previous, current = moved, r_moved, current, trial
+        x, r, J, previous, current = moved, r_moved, J_moved, current, trial
         if np.max(np.abs(step)) < GN_STEP_TOLERANCE or previous - current < cost_tolerance * previous:
             break
-    return x, iterations, r
+    return GaussNewton(x, iterations, r, J)
 
 
 def weighted_jacobian(
-    objective: BatchObjective, params: np.ndarray, robust: bool, residuals: np.ndarray | None = None
+    objective: BatchObjective, params: np.ndarray, robust: bool, at: GaussNewton | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The residuals at params (residuals, when already known) and the Jacobian whose rows carry
-    the square root of their Huber weights (robust) or are as they are: J^T J is then the
-    information of the optimum."""
-    r = objective.residuals(params) if residuals is None else residuals
-    J = objective.jacobian(params)
+    """The residuals at params and the Jacobian whose rows carry the square root of their Huber
+    weights (robust) or are as they are: J^T J is then the information of the optimum. at: a
+    Gauss-Newton result at params, whose residuals and Jacobian are used."""
+    r, J = objective.linearise(params) if at is None else (at.residuals, at.jacobian)
     return r, J * np.sqrt(huber_weights(r))[:, None] if robust else J
 
 
-def state_covariance(objective: BatchObjective, params: np.ndarray, robust: bool) -> np.ndarray:
+def state_covariance(
+    objective: BatchObjective, params: np.ndarray, robust: bool, at: GaussNewton | None = None
+) -> np.ndarray:
     """(n, n) covariance of the state's local perturbation at params: the state block of
     inv(J^T W J) (the Schur complement's inverse), carried from the parameters to the perturbation
-    at the estimate."""
-    _, J = weighted_jacobian(objective, params, robust)
+    at the estimate. at: as weighted_jacobian's."""
+    _, J = weighted_jacobian(objective, params, robust, at)
     to_local = objective.start.plus_jacobian(params[: objective.n])
     n = objective.n  # the state: the first of the global columns
     cov = to_local @ global_inverse(J, objective.layout)[:n, :n] @ to_local.T
@@ -242,9 +263,10 @@ def batch(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     start, source = start_point.state, start_point.source
     objective = BatchObjective(problem, start, initial_covariance(start, options), options.prior)
     with one_blas_thread():
-        params, iterations, _ = gauss_newton(objective, np.zeros(objective.size), options.robust)
+        optimum = gauss_newton(objective, np.zeros(objective.size), options.robust)
+        params, iterations = optimum.params, optimum.iterations
         state = start.plus(params[: objective.n])
-        cov = state_covariance(objective, params, options.robust)
+        cov = state_covariance(objective, params, options.robust, optimum)
     rejected = outliers(problem, objective.frame_residuals(params)) if options.robust else set()
     return calibration_from_state(
         "batch",

@@ -248,8 +248,9 @@ def _vce(
         iterations += 1
         objective = _objective(plain, levels, names)
         x0 = np.zeros(objective.size) if params is None else params
-        params, _, r = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
-        r, J = weighted_jacobian(objective, params, options.robust, r)
+        optimum = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
+        params = optimum.params
+        r, J = weighted_jacobian(objective, params, options.robust, optimum)
         hat = hat_diagonal(J, objective.layout)
         if iterations == 1:  # the rows and their groups are the same at every level
             groups = _row_groups(objective, problem)
@@ -416,9 +417,10 @@ def _prior_distance(with_prior: BatchObjective, params: np.ndarray, options: Met
     the objective at the learned levels)."""
     p = with_prior
     objective = BatchObjective(p.problem, p.start, p.P0, None, p.levels, p.declared)
-    x, _, _ = gauss_newton(objective, params, options.robust)
+    optimum = gauss_newton(objective, params, options.robust)
+    x = optimum.params
     return prior_conflict(
-        p.start.plus(x[: objective.n]), state_covariance(objective, x, options.robust), options.prior
+        p.start.plus(x[: objective.n]), state_covariance(objective, x, options.robust, optimum), options.prior
     )
 
 

@@ -378,6 +378,10 @@ class SelfCalibrationObjective:
         inner = self._objective(theta).residuals(params[: self.inner.size])
         return np.concatenate([inner, self.sqrt_info * theta])
 
+    def linearise(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """residuals(params) and jacobian(params)."""
+        return self.residuals(params), self.jacobian(params)
+
     def jacobian(self, params: np.ndarray) -> np.ndarray:
         """The batch Jacobian, theta's columns (analytic: predict_frame's camera Jacobian; the
         kinematics' through the flange pose) and theta's prior rows."""

@@ -147,8 +147,9 @@ def verify_mount(
     options = MethodOptions()
     objective = BatchObjective(problem, start, initial_covariance(start, options), None)
     with one_blas_thread():
-        params, _, _ = gauss_newton(objective, np.zeros(objective.size), options.robust)
-        cov_state = state_covariance(objective, params, options.robust)
+        optimum = gauss_newton(objective, np.zeros(objective.size), options.robust)
+        params = optimum.params
+        cov_state = state_covariance(objective, params, options.robust, optimum)
     state = start.plus(params[: objective.n])
     residual = np.concatenate(objective.frame_residuals(params))
     fit = float(residual @ residual) / max(len(residual) - objective.size, 1)
