@@ -32,7 +32,13 @@ from estimator.targets.detection import Detections, MarkerDetection, Rejection, 
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.qr_fit import TEMPLATE_QUIET_MODULES, MarkerFitError, fit_marker
 from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
+from estimator.targets.target import (
+    BoardDefinitionError,
+    integer_field,
+    positive_field,
+    sheet_fields,
+    sheet_header,
+)
 
 DICTIONARY = "DICT_APRILTAG_36h11"
 CODE_BITS = 6  # a 36h11 tag's code is 6 x 6 cells inside its black border
@@ -165,19 +171,18 @@ class AprilGridBoard:
         return draw_sheet(self.size_m, blocks, px_per_m, supersample)
 
     def to_dict(self) -> dict:
-        return {
-            "format": "hec-board",
-            "version": 1,
-            "kind": self.kind,
-            "name": self.name,
-            "size_m": list(self.size_m),
-            "tag_cols": self.tag_cols,
-            "tag_rows": self.tag_rows,
-            "tag_size_m": self.tag_size_m,
-            "tag_spacing": self.tag_spacing,
-            "border_bits": self.border_bits,
-            "first_id": self.first_id,
-        } | ({"corner_squares": True} if self.corner_squares else {})
+        return (
+            sheet_header(self.kind, self.name, self.size_m)
+            | {
+                "tag_cols": self.tag_cols,
+                "tag_rows": self.tag_rows,
+                "tag_size_m": self.tag_size_m,
+                "tag_spacing": self.tag_spacing,
+                "border_bits": self.border_bits,
+                "first_id": self.first_id,
+            }
+            | ({"corner_squares": True} if self.corner_squares else {})
+        )
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> AprilGridBoard:

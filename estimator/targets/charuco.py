@@ -25,7 +25,7 @@ from estimator.targets import checker
 from estimator.targets.detection import Detections, start_detection
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError, positive_field
+from estimator.targets.target import BoardDefinitionError, positive_field, sheet_header
 
 # Error per coordinate image noise does not explain at a ChArUco corner, pixels: the RMS on
 # noise-free renders of the default trajectory (charuco_10x5: 17 views, 606 corners).
@@ -81,12 +81,7 @@ class CharucoBoard(checker.GridCorners):
         return draw_sheet(self.size_m, list(self.cell_blocks()), px_per_m, supersample)
 
     def to_dict(self) -> dict:
-        return {
-            "format": "hec-board",
-            "version": 1,
-            "kind": self.kind,
-            "name": self.name,
-            "size_m": list(self.size_m),
+        return sheet_header(self.kind, self.name, self.size_m) | {
             "squares_x": self.squares_x,
             "squares_y": self.squares_y,
             "square_m": self.square_m,

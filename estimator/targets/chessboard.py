@@ -25,7 +25,7 @@ from estimator.targets import checker
 from estimator.targets.detection import Detections, start_detection
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError
+from estimator.targets.target import BoardDefinitionError, sheet_header
 
 # Error per coordinate image noise does not explain at a chessboard corner, pixels: the RMS on
 # noise-free renders of the default trajectory (chessboard_10x5: 17 views, 612 corners; 0.53 px with
@@ -58,12 +58,7 @@ class ChessboardBoard(checker.GridCorners):
         return (checker.squares_block(self.squares_x, self.squares_y, self.square_m),)
 
     def to_dict(self) -> dict:
-        return {
-            "format": "hec-board",
-            "version": 1,
-            "kind": self.kind,
-            "name": self.name,
-            "size_m": list(self.size_m),
+        return sheet_header(self.kind, self.name, self.size_m) | {
             "squares_x": self.squares_x,
             "squares_y": self.squares_y,
             "square_m": self.square_m,

@@ -34,6 +34,12 @@ def sheet_fields(d: dict, source: str) -> tuple[str, tuple[float, float]]:
     return name, (float(size[0]), float(size[1]))
 
 
+def sheet_header(kind: str, name: str, size_m: tuple[float, float]) -> dict:
+    """The fields every board file of a kind other than QR starts with (sheet_fields reads them
+    back)."""
+    return {"format": "hec-board", "version": 1, "kind": kind, "name": name, "size_m": list(size_m)}
+
+
 def is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
