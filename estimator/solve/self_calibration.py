@@ -378,15 +378,16 @@ class SelfCalibrationObjective:
         inner = self._objective(theta).residuals(params[: self.inner.size])
         return np.concatenate([inner, self.sqrt_info * theta])
 
-    def linearise(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """residuals(params) and jacobian(params)."""
-        return self.residuals(params), self.jacobian(params)
-
     def jacobian(self, params: np.ndarray) -> np.ndarray:
-        """The batch Jacobian, theta's columns (analytic: predict_frame's camera Jacobian; the
-        kinematics' through the flange pose) and theta's prior rows."""
+        return self.linearise(params)[1]
+
+    def linearise(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """residuals(params) and the Jacobian: the batch's (both from one batch linearisation),
+        theta's columns (analytic: predict_frame's camera Jacobian; the kinematics' through the
+        flange pose) and theta's prior rows."""
         x, theta = params[: self.inner.size], params[self.inner.size :]
         objective = self._objective(theta)
+        r_inner, J_inner = objective.linearise(x)
         state = objective.start.plus(x[: objective.n])
         blocks = [np.zeros((objective.n + (6 if objective.prior is not None else 0), len(theta)))]
         camera = bool(self.camera_columns) or self.shift_columns is not None
@@ -404,9 +405,9 @@ class SelfCalibrationObjective:
             blocks.append(np.hstack(columns))
             if objective.with_robot:
                 blocks.append(np.zeros((6, len(theta))))
-        top = np.hstack([objective.jacobian(x), np.concatenate(blocks)])
+        top = np.hstack([J_inner, np.concatenate(blocks)])
         bottom = np.hstack([np.zeros((len(theta), self.inner.size)), np.diag(self.sqrt_info)])
-        return np.vstack([top, bottom])
+        return np.concatenate([r_inner, self.sqrt_info * theta]), np.vstack([top, bottom])
 
     def _flange_step(self, i: int, T_adjusted: np.ndarray, delta: np.ndarray | None) -> np.ndarray:
         """(6, 6) d(local perturbation of frame i's flange pose, pose_plus(T_adjusted, delta)) / d(its
