@@ -356,7 +356,7 @@ def check_joint_frames(T_base_flange: np.ndarray, joints: np.ndarray, kinematics
     parts = [
         f"{what} frame {_describe_transform(T)}"
         for what, T in (("base", L), ("tool", R))
-        if _largest_error([T], [np.eye(4)], np.eye(4), np.eye(4)) >= 1.0
+        if _tolerances(T, np.eye(4)) >= 1.0
     ]
     return (
         f"the robot poses are the joints' flange poses in another {' and '.join(parts)} than the arm's "
@@ -366,9 +366,15 @@ def check_joint_frames(T_base_flange: np.ndarray, joints: np.ndarray, kinematics
 
 
 def _largest_error(T: list[np.ndarray], F: list[np.ndarray], L: np.ndarray, R: np.ndarray) -> float:
-    """The largest of T_i against L F_i R, in units of JOINT_FRAME_TOLERANCE (its worse part)."""
-    errors = [pose_error(t, L @ f @ R) for t, f in zip(T, F, strict=True)]
-    return max(max(m / JOINT_FRAME_TOLERANCE[0], r / JOINT_FRAME_TOLERANCE[1]) for m, r in errors)
+    """The largest of T_i against L F_i R, in _tolerances."""
+    return max(_tolerances(t, L @ f @ R) for t, f in zip(T, F, strict=True))
+
+
+def _tolerances(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """How far apart two poses are in units of JOINT_FRAME_TOLERANCE (the worse of translation and
+    rotation)."""
+    metres, radians = pose_error(T_a, T_b)
+    return max(metres / JOINT_FRAME_TOLERANCE[0], radians / JOINT_FRAME_TOLERANCE[1])
 
 
 def _describe_transform(T: np.ndarray) -> str:
