@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from estimator.targets import checker
-from estimator.targets.detection import Detections, start_detection
+from estimator.targets.detection import Detections
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.sheet import CellBlock, draw_sheet
 from estimator.targets.target import BoardDefinitionError, positive_field, sheet_header
@@ -123,30 +123,21 @@ def _opencv_board(
     return cv2.aruco.CharucoBoard((squares_x, squares_y), square_m, marker_m, _dictionary(dictionary))
 
 
-class CharucoDetector:
+class CharucoDetector(checker.GridCornerDetector):
     """Finds a ChArUco board's corners (module doc)."""
 
-    def __init__(self, board: CharucoBoard, settings: DetectorSettings | None = None) -> None:
-        self.board = board
-        self.settings = settings or DetectorSettings()
-        self._detector = cv2.aruco.CharucoDetector(board.opencv_board())
-        # A corner is its own centre: one floor for both.
-        self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, CORNER_FLOOR_PX)
-        self._fitter = checker.CornerFitter(board, self.corner_floor_px, self.settings.min_correlation)
+    pass_name = "charuco"
+    corner_floor = CORNER_FLOOR_PX
 
-    def detect(self, image: np.ndarray) -> Detections:
-        """The board's corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
-        gray, result = start_detection(image)
-        if gray is None:
-            return result
-        result.passes_run.append("charuco")
+    def __init__(self, board: CharucoBoard, settings: DetectorSettings | None = None) -> None:
+        super().__init__(board, settings)
+        self._detector = cv2.aruco.CharucoDetector(board.opencv_board())
+
+    def find_corners(self, gray: np.ndarray, result: Detections) -> dict[int, np.ndarray] | None:
         corners, ids, _, _ = self._detector.detectBoard(gray)
         if ids is None or len(ids) == 0:
             result.problem = f"no corner of ChArUco board {self.board.name!r} found"
-            return result
-        found = {
+            return None
+        return {
             int(i): c.astype(np.float64) for i, c in zip(ids.ravel(), corners.reshape(-1, 2), strict=True)
         }
-        result.markers, result.rejected = self._fitter.fit(gray, found, "charuco")
-        result.markers.sort(key=lambda m: m.marker_id)
-        return result

@@ -22,7 +22,8 @@ import functools
 import cv2
 import numpy as np
 
-from estimator.targets.detection import MarkerDetection, Rejection
+from estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
+from estimator.targets.qr import DetectorSettings
 from estimator.targets.qr_fit import MarkerFitError, TemplateFrame, fit_template
 from estimator.targets.sheet import CellBlock, draw_sheet
 from estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
@@ -194,3 +195,35 @@ class CornerFitter:
                 )
             )
         return markers, rejected
+
+
+class GridCornerDetector:
+    """What the chessboard's and the ChArUco board's detectors share: the grid's corners found by
+    OpenCV (find_corners, per kind, named pass_name in the detections), each refined by the
+    CornerFitter, with corner_floor_px (a corner is its own centre: one floor for both)."""
+
+    pass_name: str
+    corner_floor: float
+
+    def __init__(self, board: GridCorners, settings: DetectorSettings | None = None) -> None:
+        self.board = board
+        self.settings = settings or DetectorSettings()
+        self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, self.corner_floor)
+        self._fitter = CornerFitter(board, self.corner_floor_px, self.settings.min_correlation)
+
+    def find_corners(self, gray: np.ndarray, result: Detections) -> dict[int, np.ndarray] | None:
+        """OpenCV's corners, corner ID -> (2,) pixels; None with result.problem set when none."""
+        raise NotImplementedError
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """The board's corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
+        gray, result = start_detection(image)
+        if gray is None:
+            return result
+        result.passes_run.append(self.pass_name)
+        found = self.find_corners(gray, result)
+        if found is None:
+            return result
+        result.markers, result.rejected = self._fitter.fit(gray, found, self.pass_name)
+        result.markers.sort(key=lambda m: m.marker_id)
+        return result

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from estimator.targets import checker
-from estimator.targets.detection import Detections, start_detection
+from estimator.targets.detection import Detections
 from estimator.targets.qr import DetectorSettings
 from estimator.targets.sheet import CellBlock, draw_sheet
 from estimator.targets.target import BoardDefinitionError, sheet_header
@@ -77,37 +77,26 @@ class ChessboardBoard(checker.GridCorners):
         return board
 
 
-class ChessboardDetector:
+class ChessboardDetector(checker.GridCornerDetector):
     """Finds a chessboard's inner corners (module doc)."""
 
-    def __init__(self, board: ChessboardBoard, settings: DetectorSettings | None = None) -> None:
-        self.board = board
-        self.settings = settings or DetectorSettings()
-        self._pattern = (board.squares_x - 1, board.squares_y - 1)
-        # A corner is its own centre: one floor for both.
-        self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, CORNER_FLOOR_PX)
-        self._fitter = checker.CornerFitter(board, self.corner_floor_px, self.settings.min_correlation)
+    pass_name = "sb"
+    corner_floor = CORNER_FLOOR_PX
 
-    def detect(self, image: np.ndarray) -> Detections:
-        """The board's inner corners in an (H, W, 3) RGB or (H, W) grey uint8 image."""
-        gray, result = start_detection(image)
-        if gray is None:
-            return result
-        result.passes_run.append("sb")
+    def __init__(self, board: ChessboardBoard, settings: DetectorSettings | None = None) -> None:
+        super().__init__(board, settings)
+        self._pattern = (board.squares_x - 1, board.squares_y - 1)
+
+    def find_corners(self, gray: np.ndarray, result: Detections) -> dict[int, np.ndarray] | None:
         found, grid = cv2.findChessboardCornersSB(gray, self._pattern, flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
             result.problem = (
                 f"the chessboard's {self._pattern[0]}x{self._pattern[1]} inner corners were not all found "
                 "(a chessboard needs its whole grid in view, sharp and lit)"
             )
-            return result
+            return None
         ids = self._corner_ids(gray, grid.reshape(self._pattern[1], self._pattern[0], 2))
-        uv = grid.reshape(-1, 2).astype(np.float64)
-        result.markers, result.rejected = self._fitter.fit(
-            gray, dict(zip(ids.ravel(), uv, strict=True)), "sb"
-        )
-        result.markers.sort(key=lambda m: m.marker_id)
-        return result
+        return dict(zip(ids.ravel(), grid.reshape(-1, 2).astype(np.float64), strict=True))
 
     def _corner_ids(self, gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
         """(rows, cols) board IDs of OpenCV's (rows, cols, 2) grid: of the four ways to read it, the
