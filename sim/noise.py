@@ -17,14 +17,15 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import decode_depth, encode_depth
+from estimator.io.depth_png import UINT16_MAX
 from estimator.observe.depth import DepthNoiseModel
 from estimator.solve.problem import RobotPoseNoise as RobotPoseNoiseModel
 from sim.depth_errors import correlated_unit_noise
-from sim.fast_normal import quantised_normal
+from sim.fast_normal import normal_table, quantised_normal, uniform_levels
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
@@ -86,6 +87,32 @@ def _rays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndar
     return tuple(np.ascontiguousarray(r) for r in rays)
 
 
+@njit(cache=True, nogil=True)
+def _grazing_kernel(z: np.ndarray, valid: np.ndarray, rays: tuple, focal: tuple, cos2: float) -> np.ndarray:
+    """(H, W) bool grazing mask of _grazing_mask; z (H, W) float32, rays (rx, ry, r2) of _rays,
+    focal (fx, fy) and cos2 = cos(angle)^2 float32. Differences as np.gradient's: central, one-sided
+    on the border."""
+    rx, ry, r2 = rays
+    fx, fy = focal
+    h, w = z.shape
+    out = np.ones((h, w), dtype=np.bool_)
+    half, one = np.float32(0.5), np.float32(1.0)
+    for j in range(h):
+        up, down = max(j - 1, 0), min(j + 1, h - 1)
+        step_v = half if 0 < j < h - 1 else one
+        for i in range(w):
+            left, right = max(i - 1, 0), min(i + 1, w - 1)
+            if not (valid[j, i] and valid[j, left] and valid[j, right] and valid[up, i] and valid[down, i]):
+                continue  # no normal: a depth edge
+            step_u = half if 0 < i < w - 1 else one
+            gu = (z[j, right] - z[j, left]) * step_u * fx
+            gv = (z[down, i] - z[up, i]) * step_v * fy
+            m_z = gu * rx[j, i] + gv * ry[j, i] + z[j, i]
+            m2 = (gu * gu + gv * gv + m_z * m_z) * r2[j, i] * cos2
+            out[j, i] = not (z[j, i] * z[j, i] >= m2)
+    return out
+
+
 def _grazing_mask(
     depth_true_m: np.ndarray, valid: np.ndarray, intrinsics: CameraIntrinsics, grazing_angle_deg: float
 ) -> np.ndarray:
@@ -98,24 +125,42 @@ def _grazing_mask(
     h, w = depth_true_m.shape
     if h < 2 or w < 2:
         return np.ones((h, w), dtype=bool)
-    z = np.where(valid, depth_true_m, np.float32(np.nan)).astype(np.float32, copy=False)
     # Viewing ray r = (x, y, 1), x = (u - cx) / fx, y = (v - cy) / fy; the point is p = z r. The
     # tangents dp/du = z_u r + (z / fx) e_x, dp/dv = z_v r + (z / fy) e_y have the normal
     # n = (z / (fx fy)) (-fx z_u, -fy z_v, fx z_u x + fy z_v y + z), and n . r = z^2 / (fx fy), so
     # cos(angle) = z / (|m| |r|) with m = (-gu, -gv, gu x + gv y + z), gu = fx z_u, gv = fy z_v.
-    rx, ry, r2 = _rays(intrinsics)
-    z_v, z_u = np.gradient(z)
-    gu, gv = z_u * np.float32(intrinsics.fx), z_v * np.float32(intrinsics.fy)
-    m_z = gu * rx
-    m_z += gv * ry
-    m_z += z
-    m2 = np.square(gu, out=gu)
-    m2 += np.square(gv, out=gv)
-    m2 += np.square(m_z, out=m_z)
-    m2 *= r2
-    m2 *= np.float32(np.cos(np.radians(grazing_angle_deg)) ** 2)
-    with np.errstate(invalid="ignore"):
-        return ~(np.square(z, out=z) >= m2)  # NaN compares False
+    z = np.asarray(depth_true_m, dtype=np.float32)
+    focal = (np.float32(intrinsics.fx), np.float32(intrinsics.fy))
+    cos2 = np.float32(np.cos(np.radians(grazing_angle_deg)) ** 2)
+    return _grazing_kernel(z, valid, _rays(intrinsics), focal, cos2)
+
+
+@njit(cache=True, nogil=True)
+def _measured_depth_kernel(
+    z_true: np.ndarray, valid: np.ndarray, unit: np.ndarray, bias: tuple, sigma_unit: float, step_m: float
+) -> np.ndarray:
+    """(H, W) float32 depth of apply_depth_models from the true depth and the pixels kept so far:
+    bias (scale, offset) float32, plus sigma_unit z_true^2 unit (unit (H, W) float32, unit-variance
+    noise), 0 where not valid or not positive, then rounded to multiples of step_m (> 0; what does
+    not fit a uint16 becomes 0) or, for step_m = 0, not rounded."""
+    scale, offset = bias
+    h, w = z_true.shape
+    out = np.zeros((h, w), dtype=np.float32)
+    for j in range(h):
+        for i in range(w):
+            if not valid[j, i]:
+                continue
+            zt = z_true[j, i]
+            z = unit[j, i] * (zt * zt) * sigma_unit + (scale * zt + offset)
+            if not z > 0.0:
+                continue
+            if step_m == 0.0:
+                out[j, i] = z
+                continue
+            steps = np.rint(np.float64(z) / step_m)
+            if steps <= UINT16_MAX:
+                out[j, i] = np.float32(steps * step_m)
+    return out
 
 
 def apply_depth_models(
@@ -143,40 +188,51 @@ def apply_depth_models(
             f"({intrinsics.height}, {intrinsics.width})"
         )
     valid = _valid_mask(depth_true_m)
-    z_true = np.where(valid, depth_true_m, np.float32(0.0)).astype(np.float32, copy=False)
-    z = z_true
+    z_true = np.asarray(depth_true_m, dtype=np.float32)
 
     bias = noise.depth_bias
-    if bias.enabled:
-        z = np.float32(bias.scale) * z + np.float32(bias.offset_m)
-
-    if noise.depth.enabled:
-        if correlation_px > 1.0:
-            unit = correlated_unit_noise(z.shape, correlation_px, rng)
-        else:
-            unit = quantised_normal(rng, z.shape)
-        unit *= np.square(z_true)
-        unit *= np.float32(depth_sigma(1.0, noise.depth))  # sigma(z_true) * unit
-        z = np.add(unit, z, out=unit)
+    scale_offset = (bias.scale, bias.offset_m) if bias.enabled else (1.0, 0.0)
+    sigma_unit = depth_sigma(1.0, noise.depth) if noise.depth.enabled else 0.0
+    if not noise.depth.enabled:
+        unit = np.zeros(z_true.shape, dtype=np.float32)
+    elif correlation_px > 1.0:
+        unit = correlated_unit_noise(z_true.shape, correlation_px, rng)
+    else:
+        unit = quantised_normal(rng, z_true.shape)
 
     invalid = noise.invalid_depth
     if invalid.enabled:
-        valid &= ~_grazing_mask(depth_true_m, valid, intrinsics, invalid.grazing_angle_deg)
-        if invalid.dropout_fraction > 0.0:
-            valid &= rng.random(z.shape, dtype=np.float32) >= invalid.dropout_fraction
-
-    valid &= z > 0.0  # bias or noise may push a depth to or below zero
-    z = np.where(valid, z, np.float32(0.0))
+        valid &= ~_grazing_mask(z_true, valid, intrinsics, invalid.grazing_angle_deg)
+        if invalid.dropout_fraction > 0.0:  # a Bernoulli field, drawn as its count and its pixels
+            count = rng.binomial(valid.size, invalid.dropout_fraction)
+            valid.ravel()[rng.choice(valid.size, count, replace=False)] = False
 
     quant = noise.depth_quantisation
-    if quant.enabled:
-        return decode_depth(encode_depth(z, quant.depth_scale_m), quant.depth_scale_m)
-    return z
+    return _measured_depth_kernel(
+        z_true,
+        valid,
+        unit,
+        tuple(np.float32(v) for v in scale_offset),
+        np.float32(sigma_unit),
+        quant.depth_scale_m if quant.enabled else 0.0,
+    )
+
+
+@njit(cache=True, nogil=True)
+def _noisy_grey_levels(grey: np.ndarray, levels: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """(N,) uint8: grey (N,) float32 plus the noise table[levels] (levels (N,) uint16), clipped to
+    0..255 and rounded to the nearest level (half to even, as np.rint)."""
+    out = np.empty(grey.size, dtype=np.uint8)
+    top = np.float32(255.0)
+    for i in range(grey.size):
+        out[i] = np.uint8(np.rint(min(max(grey[i] + table[levels[i]], np.float32(0.0)), top)))
+    return out
 
 
 def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generator) -> np.ndarray:
     """The measured colour image: Gaussian blur (sigma blur_sigma_px, pixels), then additive
-    Gaussian noise (std sigma, grey levels), rounded and clipped to 0..255.
+    Gaussian noise (std sigma, grey levels; sim.fast_normal's quantised one), rounded and
+    clipped to 0..255.
 
     rgb: (H, W, 3) uint8, or float32 grey levels (unclipped, as sim.real_camera lights it).
     Returns a new (H, W, 3) uint8 array (unchanged but rounded and clipped when disabled).
@@ -196,7 +252,8 @@ def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generat
             borderType=cv2.BORDER_REFLECT_101,
         )
     if settings.sigma > 0.0:
-        img += quantised_normal(rng, img.shape, settings.sigma)
+        levels = uniform_levels(rng, (img.size,))
+        return _noisy_grey_levels(img.ravel(), levels, normal_table(settings.sigma)).reshape(img.shape)
     return np.rint(np.clip(img, 0, 255, out=img), out=img).astype(np.uint8)
 
 
