@@ -14,6 +14,7 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.fft import irfft2, next_fast_len, rfft2
 from scipy.optimize import brentq
 
@@ -104,21 +105,84 @@ def autocorrelation_length(field: np.ndarray, valid: np.ndarray | None = None) -
     return _one_over_e_lag(0.5 * (cx / cx[0] + cy / cy[0]))
 
 
-def _pairs(axis: int) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
-    """Index slices of the first and second pixel of each neighbour pair along axis (1: x, 0: y)."""
-    lo, hi = [slice(None), slice(None)], [slice(None), slice(None)]
-    lo[axis], hi[axis] = slice(None, -1), slice(1, None)
-    return tuple(lo), tuple(hi)
+@njit(cache=True, nogil=True)
+def _limited_slope(ahead: float, behind: float, per_step: float, max_abs: float) -> float:
+    """(ahead - behind) * per_step, or 0 where its size exceeds max_abs (a depth edge or an invalid
+    neighbour)."""
+    slope = (ahead - behind) * per_step
+    return slope if abs(slope) <= max_abs else 0.0
 
 
-def _gradient(z: np.ndarray, dx: int, dy: int, max_abs: float) -> np.ndarray:
-    """(H, W) float32 central difference of z along x (dx=1) or y (dy=1), one-sided on the image
-    border, set to 0 where |gradient| > max_abs (a depth edge or an invalid neighbour)."""
-    g = cv2.Sobel(z, cv2.CV_32F, dx, dy, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
-    edges = (slice(None), [0, -1]) if dx else ([0, -1], slice(None))
-    g[edges] *= 2.0  # replicated border: the one-sided difference was halved
-    g[np.abs(g) > max_abs] = 0.0
-    return g
+@njit(cache=True, nogil=True)
+def _splat(z: np.ndarray, H: np.ndarray, Kt: np.ndarray, continuity_m: float) -> np.ndarray:
+    """The forward warp of misregister_depth: every valid pixel of z (H, W) moved by H, Kt and
+    re-projected to the nearest pixel, nearest surface kept; (H, W) float32, 0 where nothing lands."""
+    h, w = z.shape
+    zm = np.empty((h, w))  # every pixel's new depth z'
+    for j in range(h):
+        for i in range(w):
+            zm[j, i] = (H[2, 0] * i + H[2, 1] * j + H[2, 2]) * np.float64(z[j, i]) + Kt[2]
+    out = np.full((h, w), np.inf, dtype=np.float32)
+    max_slope = continuity_m / 2
+    for j in range(h):
+        up, down = max(j - 1, 0), min(j + 1, h - 1)
+        per_row = 1.0 / (down - up)  # central differences, one-sided on the border
+        for i in range(w):
+            d = np.float64(z[j, i])
+            if not d > 0.0:
+                continue
+            left, right = max(i - 1, 0), min(i + 1, w - 1)
+            u = ((H[0, 0] * i + H[0, 1] * j + H[0, 2]) * d + Kt[0]) / zm[j, i]
+            v = ((H[1, 0] * i + H[1, 1] * j + H[1, 2]) * d + Kt[1]) / zm[j, i]
+            iu, iv = np.rint(u), np.rint(v)
+            # Sub-pixel correction to the target pixel centre, d z'/d u' ~ d z'/d u (the warp is ~1:1).
+            zc = (
+                zm[j, i]
+                + _limited_slope(zm[j, right], zm[j, left], 1.0 / (right - left), max_slope) * (iu - u)
+                + _limited_slope(zm[down, i], zm[up, i], per_row, max_slope) * (iv - v)
+            )
+            if zc > 0.0 and 0.0 <= iu <= w - 1 and 0.0 <= iv <= h - 1:
+                tj, ti = int(iv), int(iu)
+                out[tj, ti] = min(out[tj, ti], np.float32(zc))
+    for j in range(h):
+        for i in range(w):
+            if out[j, i] == np.inf:
+                out[j, i] = 0.0
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _close_cracks(
+    out: np.ndarray, z: np.ndarray, H_inv: np.ndarray, Kt: np.ndarray, continuity_m: float
+) -> None:
+    """One pass of misregister_depth's crack filling on out (H, W) float32, in place; candidates are
+    judged on out as it was before the pass."""
+    h, w = out.shape
+    before = out.copy()
+    for j in range(h):
+        for i in range(w):
+            if before[j, i] > 0.0:
+                continue
+            total, count = np.float32(0.0), 0
+            for dj, di in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                ja, ia, jb, ib = j + dj, i + di, j - dj, i - di
+                if not (0 <= ja < h and 0 <= ia < w and 0 <= jb < h and 0 <= ib < w):
+                    continue
+                a, b = before[ja, ia], before[jb, ib]
+                if a > 0.0 and b > 0.0 and abs(a - b) < continuity_m:
+                    total += a + b
+                    count += 2
+            if count == 0:
+                continue
+            zf = total / np.float32(count)
+            p0, p1, p2 = i * np.float64(zf) - Kt[0], j * np.float64(zf) - Kt[1], np.float64(zf) - Kt[2]
+            qz = H_inv[2, 0] * p0 + H_inv[2, 1] * p1 + H_inv[2, 2] * p2
+            if not qz > 0.0:
+                continue
+            us = np.rint((H_inv[0, 0] * p0 + H_inv[0, 1] * p1 + H_inv[0, 2] * p2) / qz)
+            vs = np.rint((H_inv[1, 0] * p0 + H_inv[1, 1] * p1 + H_inv[1, 2] * p2) / qz)
+            if 0.0 <= us <= w - 1 and 0.0 <= vs <= h - 1 and abs(z[int(vs), int(us)] - qz) < continuity_m:
+                out[j, i] = zf
 
 
 def misregister_depth(
@@ -140,49 +204,51 @@ def misregister_depth(
     z = np.asarray(depth_m, dtype=np.float32)
     if not np.all(z >= 0.0):  # NaN or negative: invalid
         z = np.where(np.isfinite(z) & (z > 0.0), z, np.float32(0.0))
-    h, w = z.shape
     Kd, T = np.asarray(K, dtype=np.float64), np.asarray(T_cam_cammeasured, dtype=np.float64)
-    H, Kt = Kd @ T[:3, :3] @ np.linalg.inv(Kd), Kd @ T[:3, 3]
     # Homogeneous target pixel z' (u', v', 1) = H z (u, v, 1) + K t; its last entry is the new depth z'.
-    uz = np.arange(w, dtype=np.float32)[None, :] * z
-    vz = np.arange(h, dtype=np.float32)[:, None] * z
-    qu, qv, zm = cv2.split(cv2.transform(cv2.merge([uz, vz, z]), np.hstack([H, Kt[:, None]])))
-    u, v = cv2.divide(qu, zm), cv2.divide(qv, zm)
-    iu, iv = np.rint(u), np.rint(v)
-    # Sub-pixel correction to the target pixel centre, d z'/d u' ~ d z'/d u (the warp is ~1:1).
-    zc = (
-        zm
-        + _gradient(zm, 1, 0, continuity_m / 2) * (iu - u)
-        + _gradient(zm, 0, 1, continuity_m / 2) * (iv - v)
-    )
-    keep = (z > 0.0) & (zc > 0.0) & (iu >= 0.0) & (iu <= w - 1) & (iv >= 0.0) & (iv <= h - 1)
-    idx = np.flatnonzero(keep)
-    buf = np.full(h * w, np.inf, dtype=np.float32)
-    lin = iv.ravel()[idx].astype(np.intp) * w + iu.ravel()[idx].astype(np.intp)
-    np.minimum.at(buf, lin, zc.ravel()[idx])
-    buf[buf == np.inf] = 0.0
-    out = buf.reshape(h, w)
+    H, Kt = Kd @ T[:3, :3] @ np.linalg.inv(Kd), Kd @ T[:3, 3]
+    out = _splat(np.ascontiguousarray(z), H, Kt, continuity_m)
     # Cracks: empty pixels with a pair of opposite neighbours (-, |, both diagonals) on one surface,
     # kept if the inverse warp at the filled depth lands on a source pixel of about that depth.
     for _ in range(2):  # a second pass closes where cracks cross
-        filled = (out > 0.0).astype(np.uint8)
-        jj, ii = np.nonzero(cv2.dilate(filled, np.ones((3, 3), np.uint8)) > filled)
-        p = np.pad(out, 1)
-        total, count = np.zeros(jj.size, np.float32), np.zeros(jj.size, np.float32)
-        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            a, b = p[jj + 1 + dy, ii + 1 + dx], p[jj + 1 - dy, ii + 1 - dx]
-            ok = (a > 0.0) & (b > 0.0) & (np.abs(a - b) < continuity_m)
-            total += np.where(ok, a + b, np.float32(0.0))
-            count += 2 * ok
-        sel = count > 0
-        jj, ii, zf = jj[sel], ii[sel], total[sel] / count[sel]
-        qs = np.linalg.solve(H, np.stack([ii * zf, jj * zf, zf]) - Kt[:, None])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            us, vs = np.rint(qs[0] / qs[2]), np.rint(qs[1] / qs[2])
-        ok = (qs[2] > 0) & (us >= 0) & (us <= w - 1) & (vs >= 0) & (vs <= h - 1)
-        ok[ok] = np.abs(z[vs[ok].astype(np.intp), us[ok].astype(np.intp)] - qs[2, ok]) < continuity_m
-        out[jj[ok], ii[ok]] = zf[ok]
+        _close_cracks(out, z, np.linalg.inv(H), Kt, continuity_m)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _edge_pixels(z: np.ndarray, valid: np.ndarray, edge_threshold_m: float) -> np.ndarray:
+    """(H, W) uint8, 1 on both pixels of every pair of valid 4-neighbours whose depths z (H, W)
+    differ by more than edge_threshold_m."""
+    h, w = z.shape
+    edge = np.zeros((h, w), dtype=np.uint8)
+    for j in range(h):
+        for i in range(w):
+            if not valid[j, i]:
+                continue
+            if i + 1 < w and valid[j, i + 1] and abs(z[j, i + 1] - z[j, i]) > edge_threshold_m:
+                edge[j, i] = edge[j, i + 1] = 1
+            if j + 1 < h and valid[j + 1, i] and abs(z[j + 1, i] - z[j, i]) > edge_threshold_m:
+                edge[j, i] = edge[j + 1, i] = 1
+    return edge
+
+
+@njit(cache=True, nogil=True)
+def _window_depths(
+    z: np.ndarray, valid: np.ndarray, pixels: np.ndarray, width_px: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest and farthest valid depth of z (H, W) within width_px pixels (Chebyshev) of each
+    of the flat pixel indices pixels (N,): two (N,) float32."""
+    h, w = z.shape
+    near = np.full(pixels.size, np.inf, dtype=np.float32)
+    far = np.zeros(pixels.size, dtype=np.float32)
+    for k in range(pixels.size):
+        j, i = pixels[k] // w, pixels[k] % w
+        for jj in range(max(j - width_px, 0), min(j + width_px + 1, h)):
+            for ii in range(max(i - width_px, 0), min(i + width_px + 1, w)):
+                if valid[jj, ii]:
+                    near[k] = min(near[k], z[jj, ii])
+                    far[k] = max(far[k], z[jj, ii])
+    return near, far
 
 
 def flying_pixels(
@@ -199,22 +265,15 @@ def flying_pixels(
     pixels). Each edge pixel, with the given probability, takes fg + a (bg - fg), a ~ U(0, 1), where
     fg / bg are the nearest / farthest valid depth within width_px pixels. Other pixels are unchanged.
     """
-    z = np.asarray(depth_m, dtype=np.float32)
+    z = np.ascontiguousarray(depth_m, dtype=np.float32)
     valid = np.isfinite(z) & (z > 0.0)
-    edge = np.zeros(z.shape, dtype=np.uint8)
-    for axis in (1, 0):
-        lo, hi = _pairs(axis)
-        jump = (np.abs(z[hi] - z[lo]) > edge_threshold_m) & valid[lo] & valid[hi]
-        edge[lo] |= jump
-        edge[hi] |= jump
-    win = np.ones((2 * width_px + 1, 2 * width_px + 1), dtype=np.uint8)
+    edge = _edge_pixels(z, valid, edge_threshold_m)
     if width_px > 1:
         edge = cv2.dilate(edge, np.ones((2 * width_px - 1, 2 * width_px - 1), dtype=np.uint8))
-    idx = np.flatnonzero(edge.astype(bool) & valid)
+    idx = np.flatnonzero(edge.view(bool) & valid)
     pick = idx[rng.random(idx.size) < probability]
     a = rng.random(pick.size, dtype=np.float32)
-    fg = cv2.erode(np.where(valid, z, np.float32(np.inf)), win).ravel()[pick]
-    bg = cv2.dilate(np.where(valid, z, np.float32(0.0)), win).ravel()[pick]
+    fg, bg = _window_depths(z, valid, pick, width_px)
     out = z.copy()
     out.ravel()[pick] = fg + a * (bg - fg)
     return out
