@@ -56,7 +56,7 @@ class RealCamera:
             image = self.image
             gain = vignetting(ones, k.K, image.vignetting_corner_falloff)
             gain = light_gradient(gain, np.radians(image.light_gradient_direction_deg), image.light_gradient)
-            self._gain = np.ascontiguousarray(gain[:, :, 0])
+            self._gain = np.ascontiguousarray(gain)
 
     def depth_correlation_px(self) -> float:
         """The 1/e correlation length of the depth noise, pixels (1: independent pixels)."""
@@ -88,8 +88,8 @@ class RealCamera:
         if self.image is None:
             return rgb
         image = self.image
-        gain = self._gain * np.float32(1.0 + image.exposure_sigma * rng.standard_normal())
-        out = rgb.astype(np.float32) * gain[:, :, None]
+        exposure = 1.0 + image.exposure_sigma * rng.standard_normal()
+        out = cv2.multiply(rgb, self._gain, scale=exposure, dtype=cv2.CV_32F)
         peak = self._highlight_px(T_cam_board)
         if peak is not None and image.highlight_peak_grey > 0:
             out = _add_glare(out, peak, image.highlight_radius_px, image.highlight_peak_grey)
