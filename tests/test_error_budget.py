@@ -58,21 +58,26 @@ def test_budget_sweep_runs_and_reports(tmp_path: Path, monkeypatch: pytest.Monke
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     path = tmp_path / "budget.toml"
     path.write_text(
-        'fidelity = "render"\ntrials = 1\nmethods = ["ekf", "opencv-park"]\n'
+        'fidelity = "render"\ntrials = 3\nmethods = ["ekf", "opencv-park"]\n'
         f"scenario = {str(REALISTIC)!r}\n"
         '[fixed]\nwaypoints = 6\n[grid]\nerror_sources = ["none", "board"]\n'
     )
     out = tmp_path / "out"
     outcome = run_sweep(load_config(path), out, workers=1, progress=False)
-    assert outcome.computed == 2 and not outcome.lost
+    assert outcome.computed == 6 and not outcome.lost
     rows = load_rows(out)
-    assert [r["error_sources"] for r in rows] == ["none", "none", "board", "board"]
-    ideal = {r["method"]: r for r in rows if r["error_sources"] == "none"}
-    printed = {r["method"]: r for r in rows if r["error_sources"] == "board"}
+    assert [r["error_sources"] for r in rows] == ["none"] * 6 + ["board"] * 6
     assert all(r["status"] == "ok" for r in rows), [r["failure"] for r in rows]
+
+    def park_median_mm(source: str) -> float:
+        park = [r for r in rows if r["error_sources"] == source and r["method"] == "opencv-park"]
+        assert len(park) == 3
+        return float(np.median([r["error_translation_mm"] for r in park]))
+
     # The realistic board (0.3 % scale, 0.7 mm bend) costs Park accuracy; the ideal cell does not.
-    assert ideal["opencv-park"]["error_translation_mm"] < 1.0
-    assert printed["opencv-park"]["error_translation_mm"] > ideal["opencv-park"]["error_translation_mm"]
+    # Medians of three trials: on six waypoints one trial's noise can hide the print's bias.
+    assert park_median_mm("none") < 1.0
+    assert park_median_mm("board") > park_median_mm("none")
 
     built = report.build_report(out)
     assert (out / "plots" / "error_budget.png").is_file()
