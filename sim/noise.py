@@ -71,12 +71,6 @@ def robot_pose_noise_model(noise: NoiseSettings) -> RobotPoseNoiseModel:
     return RobotPoseNoiseModel(robot.translation_sigma_m, float(np.radians(robot.rotation_sigma_deg)))
 
 
-def _valid_mask(depth_m: np.ndarray) -> np.ndarray:
-    """(H, W) bool: finite depth in (0, MAX_RANGE_M]."""
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(depth_m) & (depth_m > 0.0) & (depth_m <= MAX_RANGE_M)
-
-
 @lru_cache(maxsize=4)
 def _rays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """x = (u - cx) / fx, y = (v - cy) / fy and x^2 + y^2 + 1 of every pixel: three (H, W) float32."""
@@ -87,79 +81,58 @@ def _rays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndar
     return tuple(np.ascontiguousarray(r) for r in rays)
 
 
-@njit(cache=True, nogil=True)
-def _grazing_kernel(z: np.ndarray, valid: np.ndarray, rays: tuple, focal: tuple, cos2: float) -> np.ndarray:
-    """(H, W) bool grazing mask of _grazing_mask; z (H, W) float32, rays (rx, ry, r2) of _rays,
-    focal (fx, fy) and cos2 = cos(angle)^2 float32. Differences as np.gradient's: central, one-sided
-    on the border."""
-    rx, ry, r2 = rays
-    fx, fy = focal
-    h, w = z.shape
-    out = np.ones((h, w), dtype=np.bool_)
-    half, one = np.float32(0.5), np.float32(1.0)
-    for j in range(h):
-        up, down = max(j - 1, 0), min(j + 1, h - 1)
-        step_v = half if 0 < j < h - 1 else one
-        for i in range(w):
-            left, right = max(i - 1, 0), min(i + 1, w - 1)
-            if not (valid[j, i] and valid[j, left] and valid[j, right] and valid[up, i] and valid[down, i]):
-                continue  # no normal: a depth edge
-            step_u = half if 0 < i < w - 1 else one
-            gu = (z[j, right] - z[j, left]) * step_u * fx
-            gv = (z[down, i] - z[up, i]) * step_v * fy
-            m_z = gu * rx[j, i] + gv * ry[j, i] + z[j, i]
-            m2 = (gu * gu + gv * gv + m_z * m_z) * r2[j, i] * cos2
-            out[j, i] = not (z[j, i] * z[j, i] >= m2)
-    return out
+@njit(cache=True, nogil=True, inline="always")
+def _in_range(z: float) -> bool:
+    """A depth the camera measures: in (0, MAX_RANGE_M] (NaN is not). Branch-free, so that loops
+    over pixels vectorise."""
+    return (z > np.float32(0.0)) & (z <= np.float32(MAX_RANGE_M))
 
 
-def _grazing_mask(
-    depth_true_m: np.ndarray, valid: np.ndarray, intrinsics: CameraIntrinsics, grazing_angle_deg: float
-) -> np.ndarray:
-    """(H, W) bool: pixels seen at more than grazing_angle_deg between the viewing ray and the surface normal.
+@njit(cache=True, nogil=True, inline="always")
+def _measure_pixel(
+    out: np.ndarray, z_true: np.ndarray, unit: np.ndarray, at: tuple, models: tuple, grazing: tuple
+) -> None:
+    """out[j, i] of _measured_depth_kernel; at: (j, i, (up, down), (left, right)), the neighbours
+    the normal is taken from (central differences, one-sided on the image border as np.gradient).
 
-    Normals come from the back-projected true depth (camera frame, metres) by
-    central differences (one-sided at the image border). A pixel next to an
-    invalid pixel gets no normal and is counted as grazing (a depth edge).
+    Grazing: viewing ray r = (x, y, 1), x = (u - cx) / fx, y = (v - cy) / fy; the point is p = z r.
+    The tangents dp/du = z_u r + (z / fx) e_x, dp/dv = z_v r + (z / fy) e_y have the normal
+    n = (z / (fx fy)) (-fx z_u, -fy z_v, fx z_u x + fy z_v y + z), and n . r = z^2 / (fx fy), so
+    cos(angle) = z / (|m| |r|) with m = (-gu, -gv, gu x + gv y + z), gu = fx z_u, gv = fy z_v.
+    A neighbour out of range leaves no normal: a depth edge, counted as grazing.
     """
-    h, w = depth_true_m.shape
-    if h < 2 or w < 2:
-        return np.ones((h, w), dtype=bool)
-    # Viewing ray r = (x, y, 1), x = (u - cx) / fx, y = (v - cy) / fy; the point is p = z r. The
-    # tangents dp/du = z_u r + (z / fx) e_x, dp/dv = z_v r + (z / fy) e_y have the normal
-    # n = (z / (fx fy)) (-fx z_u, -fy z_v, fx z_u x + fy z_v y + z), and n . r = z^2 / (fx fy), so
-    # cos(angle) = z / (|m| |r|) with m = (-gu, -gv, gu x + gv y + z), gu = fx z_u, gv = fy z_v.
-    z = np.asarray(depth_true_m, dtype=np.float32)
-    focal = (np.float32(intrinsics.fx), np.float32(intrinsics.fy))
-    cos2 = np.float32(np.cos(np.radians(grazing_angle_deg)) ** 2)
-    return _grazing_kernel(z, valid, _rays(intrinsics), focal, cos2)
+    j, i, (up, down), (left, right) = at
+    (scale, offset), sigma_unit, step_m = models
+    test, (rx, ry, r2), (fx, fy), cos2 = grazing
+    zt = z_true[j, i]
+    a, b, c, d = z_true[j, right], z_true[j, left], z_true[down, i], z_true[up, i]
+    gu = (a - b) / np.float32(right - left) * fx
+    gv = (c - d) / np.float32(down - up) * fy
+    m_z = gu * rx[j, i] + gv * ry[j, i] + zt
+    facing = _in_range(a) & _in_range(b) & _in_range(c) & _in_range(d)
+    facing &= zt * zt >= (gu * gu + gv * gv + m_z * m_z) * r2[j, i] * cos2
+    z = unit[j, i] * (zt * zt) * sigma_unit + (scale * zt + offset)
+    steps = np.rint(np.float64(z) / step_m) if step_m > 0.0 else 0.0
+    value = np.float32(steps * step_m) if step_m > 0.0 else z
+    kept = _in_range(zt) & (facing | ~test) & (z > np.float32(0.0)) & (steps <= UINT16_MAX)
+    out[j, i] = value if kept else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True)
-def _measured_depth_kernel(
-    z_true: np.ndarray, valid: np.ndarray, unit: np.ndarray, bias: tuple, sigma_unit: float, step_m: float
-) -> np.ndarray:
-    """(H, W) float32 depth of apply_depth_models from the true depth and the pixels kept so far:
-    bias (scale, offset) float32, plus sigma_unit z_true^2 unit (unit (H, W) float32, unit-variance
-    noise), 0 where not valid or not positive, then rounded to multiples of step_m (> 0; what does
-    not fit a uint16 becomes 0) or, for step_m = 0, not rounded."""
-    scale, offset = bias
+def _measured_depth_kernel(z_true: np.ndarray, unit: np.ndarray, models: tuple, grazing: tuple) -> np.ndarray:
+    """(H, W) float32 depth of apply_depth_models (all but the dropout) from the true depth z_true
+    (H, W) float32 and the unit-variance noise unit (H, W) float32. models: the bias (scale, offset)
+    and sigma(z) / z^2 (float32) and the quantisation step (metres; 0: none). grazing: whether to
+    test, the rays of _rays, (fx, fy) and the grazing angle's cos^2 (float32)."""
     h, w = z_true.shape
-    out = np.zeros((h, w), dtype=np.float32)
+    out = np.empty((h, w), dtype=np.float32)
     for j in range(h):
-        for i in range(w):
-            if not valid[j, i]:
-                continue
-            zt = z_true[j, i]
-            z = unit[j, i] * (zt * zt) * sigma_unit + (scale * zt + offset)
-            if not z > 0.0:
-                continue
-            if step_m == 0.0:
-                out[j, i] = z
-                continue
-            steps = np.rint(np.float64(z) / step_m)
-            if steps <= UINT16_MAX:
-                out[j, i] = np.float32(steps * step_m)
+        rows = (max(j - 1, 0), min(j + 1, h - 1))
+        _measure_pixel(out, z_true, unit, (j, 0, rows, (0, min(1, w - 1))), models, grazing)
+        for i in range(1, w - 1):
+            _measure_pixel(out, z_true, unit, (j, i, rows, (i - 1, i + 1)), models, grazing)
+        if w > 1:
+            _measure_pixel(out, z_true, unit, (j, w - 1, rows, (w - 2, w - 1)), models, grazing)
     return out
 
 
@@ -176,46 +149,45 @@ def apply_depth_models(
     or > MAX_RANGE_M (e.g. the far plane) are invalid. intrinsics: the depth image's camera.
     correlation_px: the 1/e correlation length of the noise (1: independent pixels).
     Returns (H, W) float32 metres, 0.0 = invalid. Applied in order: bias, Gaussian noise
-    with sigma(z_true), invalidation (grazing angle from the true depth, random dropout),
-    quantisation to multiples of depth_scale_m (what does not fit a uint16 becomes 0).
+    with sigma(z_true), invalidation (grazing angle from the true depth, see _grazing; random
+    dropout), quantisation to multiples of depth_scale_m (what does not fit a uint16 becomes 0).
     """
-    depth_true_m = np.asarray(depth_true_m)
-    if depth_true_m.ndim != 2:
-        raise ValueError(f"depth must be (H, W), got shape {depth_true_m.shape}")
-    if depth_true_m.shape != (intrinsics.height, intrinsics.width):
+    z_true = np.ascontiguousarray(depth_true_m, dtype=np.float32)
+    if z_true.ndim != 2:
+        raise ValueError(f"depth must be (H, W), got shape {z_true.shape}")
+    if z_true.shape != (intrinsics.height, intrinsics.width):
         raise ValueError(
-            f"depth shape {depth_true_m.shape} does not match the intrinsics "
+            f"depth shape {z_true.shape} does not match the intrinsics "
             f"({intrinsics.height}, {intrinsics.width})"
         )
-    valid = _valid_mask(depth_true_m)
-    z_true = np.asarray(depth_true_m, dtype=np.float32)
-
-    bias = noise.depth_bias
-    scale_offset = (bias.scale, bias.offset_m) if bias.enabled else (1.0, 0.0)
-    sigma_unit = depth_sigma(1.0, noise.depth) if noise.depth.enabled else 0.0
     if not noise.depth.enabled:
         unit = np.zeros(z_true.shape, dtype=np.float32)
     elif correlation_px > 1.0:
         unit = correlated_unit_noise(z_true.shape, correlation_px, rng)
     else:
         unit = quantised_normal(rng, z_true.shape)
-
     invalid = noise.invalid_depth
-    if invalid.enabled:
-        valid &= ~_grazing_mask(z_true, valid, intrinsics, invalid.grazing_angle_deg)
-        if invalid.dropout_fraction > 0.0:  # a Bernoulli field, drawn as its count and its pixels
-            count = rng.binomial(valid.size, invalid.dropout_fraction)
-            valid.ravel()[rng.choice(valid.size, count, replace=False)] = False
+    dropped = np.zeros(0, dtype=np.intp)
+    if invalid.enabled and invalid.dropout_fraction > 0.0:  # a Bernoulli field: its count, its pixels
+        dropped = rng.choice(z_true.size, rng.binomial(z_true.size, invalid.dropout_fraction), replace=False)
 
-    quant = noise.depth_quantisation
-    return _measured_depth_kernel(
-        z_true,
-        valid,
-        unit,
-        tuple(np.float32(v) for v in scale_offset),
-        np.float32(sigma_unit),
+    bias, quant = noise.depth_bias, noise.depth_quantisation
+    models = (
+        (np.float32(bias.scale), np.float32(bias.offset_m))
+        if bias.enabled
+        else (np.float32(1), np.float32(0)),
+        np.float32(depth_sigma(1.0, noise.depth) if noise.depth.enabled else 0.0),
         quant.depth_scale_m if quant.enabled else 0.0,
     )
+    grazing = (
+        invalid.enabled,
+        _rays(intrinsics),
+        (np.float32(intrinsics.fx), np.float32(intrinsics.fy)),
+        np.float32(np.cos(np.radians(invalid.grazing_angle_deg)) ** 2),
+    )
+    out = _measured_depth_kernel(z_true, unit, models, grazing)
+    out.ravel()[dropped] = 0.0
+    return out
 
 
 @njit(cache=True, nogil=True)

@@ -69,8 +69,9 @@ class RGBDRenderer:
         rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
         window_depth = np.empty((self.height, self.width), dtype=np.float32)
         mujoco.mjr_readPixels(rgb, window_depth, self._rect, self._context)
-        depth = (self._d / (window_depth.astype(np.float64) + self._c)).astype(np.float32)
-        return np.flipud(rgb), np.flipud(depth)
+        # OpenGL's row 0 is the bottom one; both come back C-contiguous (compiled passes want that).
+        depth = (self._d / (window_depth[::-1].astype(np.float64) + self._c)).astype(np.float32)
+        return np.ascontiguousarray(rgb[::-1]), depth
 
     def close(self) -> None:
         self._gl.make_current()
