@@ -63,7 +63,7 @@ def _kernel_for_length(correlation_px: float) -> np.ndarray:
 def correlated_unit_noise(
     shape: tuple[int, int], correlation_px: float, rng: np.random.Generator
 ) -> np.ndarray:
-    """(H, W) float32 stationary zero-mean, unit-variance Gaussian random field.
+    """(H, W) float32 (C-contiguous) stationary zero-mean, unit-variance Gaussian random field.
 
     Correlation length: its autocorrelation along x and along y is ~exp(-lag^2 / L^2), falling to 1/e
     at lag L = correlation_px pixels (as autocorrelation_length measures it). White noise filtered by
@@ -77,7 +77,7 @@ def correlated_unit_noise(
     g = _kernel_for_length(float(correlation_px))
     r = g.size // 2
     white = quantised_normal(rng, (h + 2 * r, w + 2 * r))
-    return cv2.sepFilter2D(white, cv2.CV_32F, g, g)[r : r + h, r : r + w]
+    return np.ascontiguousarray(cv2.sepFilter2D(white, cv2.CV_32F, g, g)[r : r + h, r : r + w])
 
 
 def autocorrelation_length(field: np.ndarray, valid: np.ndarray | None = None) -> float:
