@@ -14,10 +14,10 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from numba import njit
 from scipy.fft import irfft2, next_fast_len, rfft2
 from scipy.optimize import brentq
 
+from sim.compiled import compiled, compiled_inline
 from sim.fast_normal import quantised_normal
 
 _INV_E = float(np.exp(-1.0))
@@ -105,53 +105,63 @@ def autocorrelation_length(field: np.ndarray, valid: np.ndarray | None = None) -
     return _one_over_e_lag(0.5 * (cx / cx[0] + cy / cy[0]))
 
 
-@njit(cache=True, nogil=True)
-def _limited_slope(ahead: float, behind: float, per_step: float, max_abs: float) -> float:
-    """(ahead - behind) * per_step, or 0 where its size exceeds max_abs (a depth edge or an invalid
-    neighbour)."""
-    slope = (ahead - behind) * per_step
-    return slope if abs(slope) <= max_abs else 0.0
+@compiled_inline
+def _landing(z: np.ndarray, zm: np.ndarray, warp: tuple, at: tuple) -> tuple[int, np.float32]:
+    """Where pixel (j, i) of z (H, W) lands under warp (H, Kt, max_slope): the flat index of the
+    nearest target pixel (-1: none) and its depth there, corrected to that pixel's centre with the
+    slope of zm (H, W, the new depths) between the neighbours at = (j, i, (up, down), (left, right));
+    a slope above max_slope is an edge or an invalid neighbour and is taken as 0."""
+    H, Kt, max_slope = warp
+    j, i, (up, down), (left, right) = at
+    h, w = z.shape
+    d = np.float64(z[j, i])
+    u = ((H[0, 0] * i + H[0, 1] * j + H[0, 2]) * d + Kt[0]) / zm[j, i]
+    v = ((H[1, 0] * i + H[1, 1] * j + H[1, 2]) * d + Kt[1]) / zm[j, i]
+    iu, iv = np.rint(u), np.rint(v)
+    # Sub-pixel correction to the target pixel centre, d z'/d u' ~ d z'/d u (the warp is ~1:1).
+    slope_u = (zm[j, right] - zm[j, left]) / (right - left)
+    slope_v = (zm[down, i] - zm[up, i]) / (down - up)
+    slope_u = slope_u if abs(slope_u) <= max_slope else 0.0
+    slope_v = slope_v if abs(slope_v) <= max_slope else 0.0
+    zc = zm[j, i] + slope_u * (iu - u) + slope_v * (iv - v)
+    lands = (d > 0.0) & (zc > 0.0) & (iu >= 0.0) & (iu <= w - 1) & (iv >= 0.0) & (iv <= h - 1)
+    return (np.int32(iv) * w + np.int32(iu) if lands else -1), np.float32(zc)
 
 
-@njit(cache=True, nogil=True)
+@compiled
 def _splat(z: np.ndarray, H: np.ndarray, Kt: np.ndarray, continuity_m: float) -> np.ndarray:
     """The forward warp of misregister_depth: every valid pixel of z (H, W) moved by H, Kt and
-    re-projected to the nearest pixel, nearest surface kept; (H, W) float32, 0 where nothing lands."""
+    re-projected to the nearest pixel, nearest surface kept; (H, W) float32, 0 where nothing lands.
+    Where each pixel lands is computed first (a loop that vectorises), then written."""
     h, w = z.shape
     zm = np.empty((h, w))  # every pixel's new depth z'
     for j in range(h):
         for i in range(w):
             zm[j, i] = (H[2, 0] * i + H[2, 1] * j + H[2, 2]) * np.float64(z[j, i]) + Kt[2]
-    out = np.full((h, w), np.inf, dtype=np.float32)
-    max_slope = continuity_m / 2
+    target = np.empty((h, w), dtype=np.int32)  # the flat index each pixel lands on, -1: none
+    landed = np.empty((h, w), dtype=np.float32)  # its depth there
+    warp = (H, Kt, continuity_m / 2)
     for j in range(h):
-        up, down = max(j - 1, 0), min(j + 1, h - 1)
-        per_row = 1.0 / (down - up)  # central differences, one-sided on the border
-        for i in range(w):
-            d = np.float64(z[j, i])
-            if not d > 0.0:
-                continue
-            left, right = max(i - 1, 0), min(i + 1, w - 1)
-            u = ((H[0, 0] * i + H[0, 1] * j + H[0, 2]) * d + Kt[0]) / zm[j, i]
-            v = ((H[1, 0] * i + H[1, 1] * j + H[1, 2]) * d + Kt[1]) / zm[j, i]
-            iu, iv = np.rint(u), np.rint(v)
-            # Sub-pixel correction to the target pixel centre, d z'/d u' ~ d z'/d u (the warp is ~1:1).
-            zc = (
-                zm[j, i]
-                + _limited_slope(zm[j, right], zm[j, left], 1.0 / (right - left), max_slope) * (iu - u)
-                + _limited_slope(zm[down, i], zm[up, i], per_row, max_slope) * (iv - v)
+        rows = (max(j - 1, 0), min(j + 1, h - 1))
+        for i in (0, w - 1):
+            target[j, i], landed[j, i] = _landing(
+                z, zm, warp, (j, i, rows, (max(i - 1, 0), min(i + 1, w - 1)))
             )
-            if zc > 0.0 and 0.0 <= iu <= w - 1 and 0.0 <= iv <= h - 1:
-                tj, ti = int(iv), int(iu)
-                out[tj, ti] = min(out[tj, ti], np.float32(zc))
-    for j in range(h):
-        for i in range(w):
-            if out[j, i] == np.inf:
-                out[j, i] = 0.0
-    return out
+        for i in range(1, w - 1):
+            target[j, i], landed[j, i] = _landing(z, zm, warp, (j, i, rows, (i - 1, i + 1)))
+    out = np.full(h * w, np.inf, dtype=np.float32)
+    flat_target, flat_landed = target.ravel(), landed.ravel()
+    for k in range(flat_target.size):
+        t = flat_target[k]
+        if t >= 0:
+            out[t] = min(out[t], flat_landed[k])
+    for k in range(out.size):
+        if out[k] == np.inf:
+            out[k] = 0.0
+    return out.reshape(h, w)
 
 
-@njit(cache=True, nogil=True)
+@compiled
 def _close_cracks(
     out: np.ndarray, z: np.ndarray, H_inv: np.ndarray, Kt: np.ndarray, continuity_m: float
 ) -> None:
@@ -215,7 +225,7 @@ def misregister_depth(
     return out
 
 
-@njit(cache=True, nogil=True)
+@compiled
 def _edge_pixels(z: np.ndarray, valid: np.ndarray, edge_threshold_m: float) -> np.ndarray:
     """(H, W) uint8, 1 on both pixels of every pair of valid 4-neighbours whose depths z (H, W)
     differ by more than edge_threshold_m."""
@@ -232,7 +242,7 @@ def _edge_pixels(z: np.ndarray, valid: np.ndarray, edge_threshold_m: float) -> n
     return edge
 
 
-@njit(cache=True, nogil=True)
+@compiled
 def _window_depths(
     z: np.ndarray, valid: np.ndarray, pixels: np.ndarray, width_px: int
 ) -> tuple[np.ndarray, np.ndarray]:

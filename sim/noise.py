@@ -17,13 +17,13 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from numba import njit
 from scipy.spatial.transform import Rotation
 
 from estimator.geometry.camera import CameraIntrinsics
 from estimator.io.depth_png import UINT16_MAX
 from estimator.observe.depth import DepthNoiseModel
 from estimator.solve.problem import RobotPoseNoise as RobotPoseNoiseModel
+from sim.compiled import compiled, compiled_inline
 from sim.depth_errors import correlated_unit_noise
 from sim.fast_normal import normal_table, quantised_normal, uniform_levels
 from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
@@ -81,14 +81,14 @@ def _rays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndar
     return tuple(np.ascontiguousarray(r) for r in rays)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@compiled_inline
 def _in_range(z: float) -> bool:
     """A depth the camera measures: in (0, MAX_RANGE_M] (NaN is not). Branch-free, so that loops
     over pixels vectorise."""
     return (z > np.float32(0.0)) & (z <= np.float32(MAX_RANGE_M))
 
 
-@njit(cache=True, nogil=True, inline="always")
+@compiled_inline
 def _measure_pixel(
     out: np.ndarray, z_true: np.ndarray, unit: np.ndarray, at: tuple, models: tuple, grazing: tuple
 ) -> None:
@@ -118,7 +118,7 @@ def _measure_pixel(
     out[j, i] = value if kept else np.float32(0.0)
 
 
-@njit(cache=True, nogil=True)
+@compiled
 def _measured_depth_kernel(z_true: np.ndarray, unit: np.ndarray, models: tuple, grazing: tuple) -> np.ndarray:
     """(H, W) float32 depth of apply_depth_models (all but the dropout) from the true depth z_true
     (H, W) float32 and the unit-variance noise unit (H, W) float32. models: the bias (scale, offset)
@@ -190,7 +190,7 @@ def apply_depth_models(
     return out
 
 
-@njit(cache=True, nogil=True)
+@compiled
 def _noisy_grey_levels(grey: np.ndarray, levels: np.ndarray, table: np.ndarray) -> np.ndarray:
     """(N,) uint8: grey (N,) float32 plus the noise table[levels] (levels (N,) uint16), clipped to
     0..255 and rounded to the nearest level (half to even, as np.rint)."""
