@@ -165,34 +165,37 @@ def _splat(z: np.ndarray, H: np.ndarray, Kt: np.ndarray, continuity_m: float) ->
 def _close_cracks(
     out: np.ndarray, z: np.ndarray, H_inv: np.ndarray, Kt: np.ndarray, continuity_m: float
 ) -> None:
-    """One pass of misregister_depth's crack filling on out (H, W) float32, in place; candidates are
-    judged on out as it was before the pass."""
+    """One pass of misregister_depth's crack filling on out (H, W) float32, in place; every empty
+    pixel is judged on out as it was before the pass."""
     h, w = out.shape
-    before = out.copy()
-    for j in range(h):
-        for i in range(w):
-            if before[j, i] > 0.0:
+    flat = out.ravel()
+    empty = np.flatnonzero(~(flat > 0.0))
+    fill = np.zeros(empty.size, dtype=np.float32)  # 0: stays empty
+    for n in range(empty.size):
+        j, i = empty[n] // w, empty[n] % w
+        total, count = np.float32(0.0), 0
+        for dj, di in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            ja, ia, jb, ib = j + dj, i + di, j - dj, i - di
+            if not (0 <= ja < h and 0 <= ia < w and 0 <= jb < h and 0 <= ib < w):
                 continue
-            total, count = np.float32(0.0), 0
-            for dj, di in ((0, 1), (1, 0), (1, 1), (1, -1)):
-                ja, ia, jb, ib = j + dj, i + di, j - dj, i - di
-                if not (0 <= ja < h and 0 <= ia < w and 0 <= jb < h and 0 <= ib < w):
-                    continue
-                a, b = before[ja, ia], before[jb, ib]
-                if a > 0.0 and b > 0.0 and abs(a - b) < continuity_m:
-                    total += a + b
-                    count += 2
-            if count == 0:
-                continue
-            zf = total / np.float32(count)
-            p0, p1, p2 = i * np.float64(zf) - Kt[0], j * np.float64(zf) - Kt[1], np.float64(zf) - Kt[2]
-            qz = H_inv[2, 0] * p0 + H_inv[2, 1] * p1 + H_inv[2, 2] * p2
-            if not qz > 0.0:
-                continue
-            us = np.rint((H_inv[0, 0] * p0 + H_inv[0, 1] * p1 + H_inv[0, 2] * p2) / qz)
-            vs = np.rint((H_inv[1, 0] * p0 + H_inv[1, 1] * p1 + H_inv[1, 2] * p2) / qz)
-            if 0.0 <= us <= w - 1 and 0.0 <= vs <= h - 1 and abs(z[int(vs), int(us)] - qz) < continuity_m:
-                out[j, i] = zf
+            a, b = out[ja, ia], out[jb, ib]
+            if a > 0.0 and b > 0.0 and abs(a - b) < continuity_m:
+                total += a + b
+                count += 2
+        if count == 0:
+            continue
+        zf = total / np.float32(count)
+        p0, p1, p2 = i * np.float64(zf) - Kt[0], j * np.float64(zf) - Kt[1], np.float64(zf) - Kt[2]
+        qz = H_inv[2, 0] * p0 + H_inv[2, 1] * p1 + H_inv[2, 2] * p2
+        if not qz > 0.0:
+            continue
+        us = np.rint((H_inv[0, 0] * p0 + H_inv[0, 1] * p1 + H_inv[0, 2] * p2) / qz)
+        vs = np.rint((H_inv[1, 0] * p0 + H_inv[1, 1] * p1 + H_inv[1, 2] * p2) / qz)
+        if 0.0 <= us <= w - 1 and 0.0 <= vs <= h - 1 and abs(z[int(vs), int(us)] - qz) < continuity_m:
+            fill[n] = zf
+    for n in range(empty.size):
+        if fill[n] > 0.0:
+            flat[empty[n]] = fill[n]
 
 
 def misregister_depth(
