@@ -214,7 +214,7 @@ def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generat
         raise ValueError(f"rgb must be (H, W, 3) uint8 or float32, got shape {rgb.shape} dtype {rgb.dtype}")
     if not settings.enabled:
         return rgb.copy() if rgb.dtype == np.uint8 else np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-    img = rgb.astype(np.float32)
+    img = rgb.astype(np.float32, copy=False)  # not written to
     if settings.blur_sigma_px > 0.0:
         img = cv2.GaussianBlur(
             img,
@@ -226,7 +226,7 @@ def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generat
     if settings.sigma > 0.0:
         levels = uniform_levels(rng, (img.size,))
         return _noisy_grey_levels(img.ravel(), levels, normal_table(settings.sigma)).reshape(img.shape)
-    return np.rint(np.clip(img, 0, 255, out=img), out=img).astype(np.uint8)
+    return np.rint(np.clip(img, 0, 255)).astype(np.uint8)
 
 
 def perturb_flange_pose(
