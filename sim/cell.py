@@ -15,7 +15,13 @@ import mujoco
 import numpy as np
 
 from estimator.geometry.camera import project
-from estimator.geometry.kinematics import IK_RESTARTS, forward, has_ur_structure, solve_ik, ur_ik_solutions
+from estimator.geometry.kinematics import (
+    IK_RESTARTS,
+    forward,
+    has_ur_structure,
+    solve_ik,
+    ur_ik_nearest_first,
+)
 from estimator.geometry.transforms import invert
 from estimator.geometry.waypoints import Waypoint, WaypointRejected
 from estimator.io.dataset import Frame, GroundTruth
@@ -286,8 +292,7 @@ class SimCell:
             yield q
             return
         if has_ur_structure(kin):
-            solutions = ur_ik_solutions(kin, waypoint.T_base_flange, self.joints)
-            yield from sorted(solutions, key=lambda q: float(np.max(np.abs(q - self.joints))))
+            yield from ur_ik_nearest_first(kin, waypoint.T_base_flange, self.joints)
             return
         first = solve_ik(kin, waypoint.T_base_flange, self.joints)
         tried = []

@@ -16,7 +16,7 @@ from estimator.geometry.kinematics import (
     jacobian,
     solve_ik,
     solve_ik_nearest,
-    ur_ik_solutions,
+    ur_ik_nearest_first,
 )
 from estimator.geometry.transforms import invert, make_transform, pose_error
 from estimator.io.models import models_dir
@@ -96,8 +96,8 @@ def test_ik_reports_an_unreachable_pose() -> None:
 @pytest.mark.parametrize("robot", ["ur5", "ur5e"])
 def test_closed_form_ik_finds_every_configuration(robot: str) -> None:
     """From random joints: every closed-form solution reaches the pose within the limits, the
-    joints the pose came from are among them (each angle at the turn nearest), up to 8, no repeats;
-    solve_ik_nearest picks the one that moves the joints least."""
+    joints the pose came from are among them (each angle at the turn nearest), up to 8, no repeats,
+    the least move first; solve_ik_nearest picks the one that moves the joints least."""
     kin = ROBOTS[robot]
     assert has_ur_structure(kin)
     rng = np.random.default_rng(5)
@@ -105,16 +105,18 @@ def test_closed_form_ik_finds_every_configuration(robot: str) -> None:
     for _ in range(100):
         q_true = rng.uniform(-np.pi, np.pi, 6)
         target = forward(kin, q_true)
-        solutions = ur_ik_solutions(kin, target, q_true)
+        solutions = list(ur_ik_nearest_first(kin, target, q_true))
         counts.append(len(solutions))
         assert any(np.allclose(q, q_true, atol=1e-7) for q in solutions)
+        moves = [np.max(np.abs(q - q_true)) for q in solutions]
+        assert np.all(np.diff(moves) >= -1e-9), "the least move first"
         for q in solutions:
             assert np.all(q >= kin.q_lower) and np.all(q <= kin.q_upper)
             dt, dr = pose_error(forward(kin, q), target)
             assert dt < 1e-9 and dr < 1e-9
         np.testing.assert_allclose(solve_ik_nearest(kin, target, q_true + 0.05), q_true, atol=1e-7)
     assert max(counts) == 8 and np.median(counts) == 8
-    assert ur_ik_solutions(kin, make_transform(np.eye(3), [2.0, 0.0, 1.0]), np.zeros(6)) == []
+    assert list(ur_ik_nearest_first(kin, make_transform(np.eye(3), [2.0, 0.0, 1.0]), np.zeros(6))) == []
 
 
 def test_an_arm_off_the_nominal_model_is_not_solved_in_closed_form() -> None:

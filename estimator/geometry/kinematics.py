@@ -8,6 +8,7 @@ Frames: ``base`` is UR's base frame, ``flange`` is tool0 (DH frame 6).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -200,11 +201,10 @@ IK_RESTARTS = np.array(
 
 def solve_ik_nearest(kin: URKinematics, T_base_flange: np.ndarray, q_seed: np.ndarray) -> np.ndarray | None:
     """Joints (6,) reaching T_base_flange that move the joints least from q_seed (the largest joint
-    move): of every closed-form solution for a UR arm's nominal model (ur_ik_solutions); otherwise
+    move): of every closed-form solution for a UR arm's nominal model (ur_ik_nearest_first); otherwise
     from q_seed if that converges, else of the solutions from IK_RESTARTS. None when none is found."""
     if has_ur_structure(kin):
-        solutions = ur_ik_solutions(kin, T_base_flange, q_seed)
-        return min(solutions, key=lambda q: float(np.max(np.abs(q - q_seed)))) if solutions else None
+        return next(ur_ik_nearest_first(kin, T_base_flange, q_seed), None)
     first = solve_ik(kin, T_base_flange, q_seed)
     if first.converged:
         return first.q
@@ -216,7 +216,7 @@ def solve_ik_nearest(kin: URKinematics, T_base_flange: np.ndarray, q_seed: np.nd
 
 def has_ur_structure(kin: URKinematics) -> bool:
     """Whether kin is a UR arm's nominal DH model (twists pi/2, 0, 0, pi/2, -pi/2, 0; a1 = a4 = a5 = a6
-    = 0; d2 = d3 = 0; no joint offsets), for which ur_ik_solutions is exact."""
+    = 0; d2 = d3 = 0; no joint offsets), for which ur_ik_nearest_first is exact."""
     return (
         np.allclose(kin.alpha, (_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0), rtol=0, atol=1e-12)
         and kin.a[0] == kin.a[3] == kin.a[4] == kin.a[5] == 0.0
@@ -225,10 +225,10 @@ def has_ur_structure(kin: URKinematics) -> bool:
     )
 
 
-def ur_ik_solutions(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray) -> list[np.ndarray]:
-    """Every joint solution (6,) within the limits of a UR arm (has_ur_structure) reaching T_base_flange,
-    in closed form (up to 8: shoulder, wrist and elbow each one way or the other), each angle the
-    turn of it nearest q_near's, then refined by solve_ik; those that converge, without repeats."""
+def _ur_closed_form(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray) -> list[np.ndarray]:
+    """The closed-form joint solutions (6,) of a UR arm (has_ur_structure) reaching T_base_flange,
+    not refined (up to 8: shoulder, wrist and elbow each one way or the other), each angle the turn
+    of it nearest q_near's within the limits; those with an angle outside every turn left out."""
     a2, a3, d4, d6 = kin.a[1], kin.a[2], kin.d[3], kin.d[5]
     R, p = T_base_flange[:3, :3], T_base_flange[:3, 3]
     wrist = p - d6 * R[:, 2]  # origin of DH frame 5
@@ -258,12 +258,25 @@ def ur_ik_solutions(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.nda
                 q2 = math.atan2(y, x) - math.atan2(a3 * math.sin(q3), a2 + a3 * math.cos(q3))
                 q4 = math.atan2(T14[1, 0], T14[0, 0]) - q2 - q3
                 q = _nearest_turns(kin, np.array([q1, q2, q3, q4, q5, q6]), q_near)
-                if q is None:
-                    continue
-                refined = solve_ik(kin, T_base_flange, q)
-                if refined.converged and all(np.abs(refined.q - s).max() > 1e-6 for s in solutions):
-                    solutions.append(refined.q)
+                if q is not None:
+                    solutions.append(q)
     return solutions
+
+
+def ur_ik_nearest_first(
+    kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray
+) -> Iterator[np.ndarray]:
+    """The joint solutions (6,) of a UR arm (has_ur_structure) reaching T_base_flange within the
+    limits, the one that moves the joints least from q_near (the largest joint move) first: each
+    closed-form solution refined by solve_ik when it is asked for (a caller that takes the first
+    refines one); those that converge, without repeats."""
+    closed_form = _ur_closed_form(kin, T_base_flange, q_near)
+    given: list[np.ndarray] = []
+    for q in sorted(closed_form, key=lambda q: float(np.max(np.abs(q - q_near)))):
+        refined = solve_ik(kin, T_base_flange, q)
+        if refined.converged and all(np.abs(refined.q - s).max() > 1e-6 for s in given):
+            given.append(refined.q)
+            yield refined.q
 
 
 def _nearest_turns(kin: URKinematics, q: np.ndarray, q_near: np.ndarray) -> np.ndarray | None:
