@@ -1,7 +1,8 @@
 """Depth errors of a real stereo depth camera (Intel RealSense D435) beyond white per-pixel noise.
 
 Spatially correlated noise, depth-to-colour misregistration (an error in the calibrated pose of
-the depth imager), flying pixels at depth edges and blob-shaped holes. Pure numpy/scipy/OpenCV.
+the depth imager), flying pixels at depth edges and blob-shaped holes. numpy/scipy/OpenCV, the
+per-pixel loops compiled (sim.compiled).
 
 All randomness comes from the ``numpy.random.Generator`` passed in; the same inputs and generator
 state give bit-identical results. Depth images are (H, W) float32 metres along the optical axis,
@@ -214,17 +215,18 @@ def misregister_depth(
     continuity_m) whose source pixel is valid: they get the neighbours' mean, since the real camera's
     footprint splatting leaves no cracks either.
     """
-    z = np.asarray(depth_m, dtype=np.float32)
+    z = np.ascontiguousarray(depth_m, dtype=np.float32)
     if not np.all(z >= 0.0):  # NaN or negative: invalid
         z = np.where(np.isfinite(z) & (z > 0.0), z, np.float32(0.0))
     Kd, T = np.asarray(K, dtype=np.float64), np.asarray(T_cam_cammeasured, dtype=np.float64)
     # Homogeneous target pixel z' (u', v', 1) = H z (u, v, 1) + K t; its last entry is the new depth z'.
     H, Kt = Kd @ T[:3, :3] @ np.linalg.inv(Kd), Kd @ T[:3, 3]
-    out = _splat(np.ascontiguousarray(z), H, Kt, continuity_m)
+    out = _splat(z, H, Kt, continuity_m)
     # Cracks: empty pixels with a pair of opposite neighbours (-, |, both diagonals) on one surface,
     # kept if the inverse warp at the filled depth lands on a source pixel of about that depth.
+    H_inv = np.linalg.inv(H)
     for _ in range(2):  # a second pass closes where cracks cross
-        _close_cracks(out, z, np.linalg.inv(H), Kt, continuity_m)
+        _close_cracks(out, z, H_inv, Kt, continuity_m)
     return out
 
 

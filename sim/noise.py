@@ -3,8 +3,9 @@
 Depth (D435-like stereo): systematic bias, Gaussian noise growing with z^2,
 invalid pixels at grazing angles and at random, and quantisation to the steps
 of a uint16 depth image. Colour: Gaussian blur and additive Gaussian noise. The
-Gaussian fields are sim.fast_normal's 16-bit quantised ones; arithmetic is float32.
-Robot: a noisy reported flange pose. Pure numpy/scipy/OpenCV (no MuJoCo).
+Gaussian fields are sim.fast_normal's 16-bit quantised ones; arithmetic is float32,
+per pixel in compiled passes (sim.compiled). Robot: a noisy reported flange pose.
+numpy/scipy/OpenCV/numba (no MuJoCo).
 
 All randomness comes from the ``numpy.random.Generator`` passed in; the same
 settings and generator state give bit-identical results. Depth is in metres
@@ -114,7 +115,7 @@ def _measure_pixel(
     z = unit[j, i] * (zt * zt) * sigma_unit + (scale * zt + offset)
     steps = np.rint(np.float64(z) / step_m) if step_m > 0.0 else 0.0
     value = np.float32(steps * step_m) if step_m > 0.0 else z
-    kept = _in_range(zt) & (facing | ~test) & (z > np.float32(0.0)) & (steps <= UINT16_MAX)
+    kept = _in_range(zt) & (facing | (not test)) & (z > np.float32(0.0)) & (steps <= UINT16_MAX)
     out[j, i] = value if kept else np.float32(0.0)
 
 
@@ -149,7 +150,7 @@ def apply_depth_models(
     or > MAX_RANGE_M (e.g. the far plane) are invalid. intrinsics: the depth image's camera.
     correlation_px: the 1/e correlation length of the noise (1: independent pixels).
     Returns (H, W) float32 metres, 0.0 = invalid. Applied in order: bias, Gaussian noise
-    with sigma(z_true), invalidation (grazing angle from the true depth, see _grazing; random
+    with sigma(z_true), invalidation (grazing angle from the true depth, see _measure_pixel; random
     dropout), quantisation to multiples of depth_scale_m (what does not fit a uint16 becomes 0).
     """
     z_true = np.ascontiguousarray(depth_true_m, dtype=np.float32)

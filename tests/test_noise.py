@@ -119,6 +119,19 @@ def test_depth_edges_are_invalidated() -> None:
     assert np.all(out[:, :318] > 0) and np.all(out[:, 322:] > 0)
 
 
+def test_without_invalidation_edges_and_grazing_views_keep_their_depth() -> None:
+    true = flat(INTR, 0.5)
+    true[:, 320:] = 0.8  # a step in depth
+    true[:, :5] = 0.0  # and pixels with no depth next to valid ones
+    steep, _ = tilted_plane(NARROW, 0.45, 80.0)
+    for depth, intr in ((true, INTR), (steep, NARROW)):
+        out = apply_depth_models(
+            depth, intr, only(depth_quantisation=DepthQuantisation()), np.random.default_rng(0)
+        )
+        np.testing.assert_allclose(out, depth, atol=0.0005)
+        assert np.array_equal(out > 0, depth > 0)
+
+
 @pytest.mark.parametrize("fraction", [0.002, 0.05, 0.3])
 def test_dropout_fraction(fraction: float) -> None:
     noise = only(invalid_depth=InvalidDepth(dropout_fraction=fraction))
