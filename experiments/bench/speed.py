@@ -21,7 +21,7 @@ import argparse
 import resource
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -62,11 +62,17 @@ def trial_times(folder: Path, rounds: int, seed: int) -> dict[str, float]:
 
 
 def _trials_per_second(pool: ProcessPoolExecutor, tasks: list[TrialTask], workers: int) -> float:
-    """Throughput of the pool on tasks, after a first trial on each worker (its start-up)."""
+    """Throughput of the pool on tasks, after a first trial on each worker (its start-up), while
+    every worker is busy: up to the completion that leaves a worker without a trial to start (the
+    last workers - 1 trials run beside idle workers, which a long sweep does not see)."""
     list(pool.map(run_trial, tasks[:workers]))
     start = time.perf_counter()
-    list(pool.map(run_trial, tasks[workers:]))
-    return (len(tasks) - workers) / (time.perf_counter() - start)
+    measured = tasks[workers:]
+    busy = len(measured) - workers + 1
+    for done, _ in enumerate(as_completed([pool.submit(run_trial, task) for task in measured]), 1):
+        if done == busy:
+            return busy / (time.perf_counter() - start)
+    raise ValueError(f"{len(measured)} trials are too few to measure {workers} workers")
 
 
 def worker_speedup(folder: Path, fidelity: str, trials: int, seed: int) -> dict[str, float]:
