@@ -227,8 +227,8 @@ def has_ur_structure(kin: URKinematics) -> bool:
 
 def _ur_closed_form(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray) -> list[np.ndarray]:
     """The closed-form joint solutions (6,) of a UR arm (has_ur_structure) reaching T_base_flange,
-    not refined (up to 8: shoulder, wrist and elbow each one way or the other), each angle the turn
-    of it nearest q_near's within the limits; those with an angle outside every turn left out."""
+    not refined (up to 8: shoulder, wrist and elbow each one way or the other), each angle at its
+    turn within the limits nearest q_near's; none where an angle has no turn within them."""
     a2, a3, d4, d6 = kin.a[1], kin.a[2], kin.d[3], kin.d[5]
     R, p = T_base_flange[:3, :3], T_base_flange[:3, 3]
     wrist = p - d6 * R[:, 2]  # origin of DH frame 5
