@@ -2,8 +2,9 @@
 
 The renderer draws a distortion-free pinhole image with ``K_render`` (from :func:`render_camera_for`,
 larger than the real image so that it holds every ray the real, distorted camera sees); the maps of
-:func:`distortion_maps` (computed once per camera) then resample it per frame into the distorted image
-a real camera with ``(K_true, dist_true)`` would take (:func:`distort_rgbd`).
+:func:`distortion_maps` and the depth tables of :func:`depth_sampling` (computed once per camera) then
+resample it per frame into the distorted image a real camera with ``(K_true, dist_true)`` would take
+(:func:`distort_rgb` with OpenCV, :func:`distort_depth` in one compiled pass; :func:`distort_rgbd`).
 
 Conventions: OpenCV optical frame (x right, y down, z forward); pixel (0, 0) is the centre of the
 top-left pixel, so an image of width W spans -0.5 .. W - 0.5. ``K`` is a (3, 3) camera matrix (zero skew);
@@ -12,8 +13,12 @@ top-left pixel, so an image of width W spans -0.5 .. W - 0.5. ``K`` is a (3, 3) 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
+
+from sim.compiled import compiled
 
 # Iterative undistortion to 1e-9 px: cv2.undistortPoints' default 5 iterations leave 1e-3 px (k1 = 0.15)
 # to 0.15 px (k1 = -0.4) of error near the image corners.
@@ -131,32 +136,101 @@ def distort_rgb(rgb_render: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) ->
     return cv2.remap(rgb_render, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
-_BLOCK = np.ones((3, 3), np.uint8)
+class DepthSampling(NamedTuple):
+    """Where distort_depth samples the render for each pixel of the (H, W) output image, computed once
+    per camera from the maps (flat (H * W,) arrays, flat render pixel indices):
+    nearest: the render pixel nearest to the map point (int32), -1 where the point lies outside the
+    render's pixel centres (those output pixels are invalid; render_camera_for's margin keeps the maps
+    inside); corner: the top-left one of its 4 bilinear neighbours (int32); fx, fy: the bilinear
+    weights of the right and lower neighbours (float32, 0..1); shape: (H, W); render_shape: (Hr, Wr)."""
+
+    nearest: np.ndarray
+    corner: np.ndarray
+    fx: np.ndarray
+    fy: np.ndarray
+    shape: tuple[int, int]
+    render_shape: tuple[int, int]
 
 
-def distort_depth(
-    depth_render: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, rel_tol: float = 0.005
-) -> np.ndarray:
+def depth_sampling(map_x: np.ndarray, map_y: np.ndarray, render_shape: tuple[int, int]) -> DepthSampling:
+    """The DepthSampling of the maps (H, W) float32 (distortion_maps) into a render of (Hr, Wr)."""
+    h_r, w_r = render_shape
+    if h_r < 2 or w_r < 2:
+        raise ValueError(f"a render of at least 2 x 2 pixels is needed, got {render_shape}")
+    x, y = np.asarray(map_x, dtype=np.float64).ravel(), np.asarray(map_y, dtype=np.float64).ravel()
+    inside = (x >= 0.0) & (x <= w_r - 1) & (y >= 0.0) & (y <= h_r - 1)
+    x0 = np.clip(np.floor(x), 0, w_r - 2).astype(np.int64)
+    y0 = np.clip(np.floor(y), 0, h_r - 2).astype(np.int64)
+    nearest = np.where(inside, np.rint(y).astype(np.int64) * w_r + np.rint(x).astype(np.int64), -1)
+    return DepthSampling(
+        nearest.astype(np.int32),
+        (y0 * w_r + x0).astype(np.int32),
+        (x - x0).astype(np.float32),
+        (y - y0).astype(np.float32),
+        tuple(np.shape(map_x)),
+        (h_r, w_r),
+    )
+
+
+@compiled
+def _smooth_blocks(z: np.ndarray, rel_tol: float) -> np.ndarray:
+    """(Hr, Wr) uint8: 1 where the 3 x 3 block of z (Hr, Wr) float32 around the pixel (border pixels
+    replicated) is all valid and its largest depth is within rel_tol of its smallest."""
+    h, w = z.shape
+    lo, hi = np.empty((h, w), np.float32), np.empty((h, w), np.float32)  # over 3 pixels of a row
+    for j in range(h):
+        for i in (0, w - 1):
+            a, b, c = z[j, max(i - 1, 0)], z[j, i], z[j, min(i + 1, w - 1)]
+            lo[j, i], hi[j, i] = min(min(a, b), c), max(max(a, b), c)
+        for i in range(1, w - 1):  # the interior without clamping, so that the loop vectorises
+            a, b, c = z[j, i - 1], z[j, i], z[j, i + 1]
+            lo[j, i], hi[j, i] = min(min(a, b), c), max(max(a, b), c)
+    smooth = np.empty((h, w), np.uint8)
+    agree = np.float32(1.0 + rel_tol)
+    for j in range(h):
+        up, down = max(j - 1, 0), min(j + 1, h - 1)
+        for i in range(w):
+            block_lo = min(min(lo[up, i], lo[j, i]), lo[down, i])
+            block_hi = max(max(hi[up, i], hi[j, i]), hi[down, i])
+            smooth[j, i] = (block_hi <= block_lo * agree) & (block_lo > np.float32(0.0))
+    return smooth
+
+
+@compiled
+def _resample_depth(z: np.ndarray, smooth: np.ndarray, sampling: tuple) -> np.ndarray:
+    """(H * W,) float32 of distort_depth: z (Hr, Wr) float32, smooth of _smooth_blocks, sampling the
+    (nearest, corner, fx, fy) of a DepthSampling."""
+    nearest, corner, fx, fy = sampling
+    w_r = z.shape[1]
+    flat, flat_smooth = z.ravel(), smooth.ravel()
+    out = np.empty(nearest.size, dtype=np.float32)
+    for k in range(nearest.size):
+        n, c = max(nearest[k], 0), corner[k]
+        top = flat[c] + fx[k] * (flat[c + 1] - flat[c])
+        bottom = flat[c + w_r] + fx[k] * (flat[c + w_r + 1] - flat[c + w_r])
+        value = top + fy[k] * (bottom - top) if flat_smooth[n] else flat[n]
+        out[k] = value if nearest[k] >= 0 else np.float32(0.0)
+    return out
+
+
+def distort_depth(depth_render: np.ndarray, sampling: DepthSampling, rel_tol: float = 0.005) -> np.ndarray:
     """Resample a pinhole depth render (Hr, Wr) float32, metres along the optical axis, 0 = invalid,
     into the distorted image (H, W) float32 without inventing depth across edges or holes.
 
-    Bilinear where the 3 x 3 render pixels around the nearest one (which hold the 4 bilinear neighbours)
-    are all valid and agree within rel_tol * depth (0.005 passes planes tilted up to ~55 deg from
-    fronto-parallel at 600 px focal length: z varies by ~2 tan(tilt) / f across the block), else the
-    nearest render pixel. No depth correction is
+    Bilinear (exact, in float32) where the 3 x 3 render pixels around the nearest one (which hold the
+    4 bilinear neighbours) are all valid and agree within rel_tol * depth (0.005 passes planes tilted
+    up to ~55 deg from fronto-parallel at 600 px focal length: z varies by ~2 tan(tilt) / f across the
+    block), else the nearest render pixel. One compiled pass over the output (0.6 ms at 640 x 480,
+    against 1.8 ms of CPU for OpenCV's erode, dilate and three remaps). No depth correction is
     needed: z along the optical axis belongs to the 3D point, so it is the same for the ray whatever the
     lens does to its pixel position.
     """
     depth = np.ascontiguousarray(depth_render, dtype=np.float32)
-    lo = cv2.erode(depth, _BLOCK, borderType=cv2.BORDER_REPLICATE)
-    hi = cv2.dilate(depth, _BLOCK, borderType=cv2.BORDER_REPLICATE)
-    smooth = ((hi <= lo * np.float32(1.0 + rel_tol)) & (lo > 0.0)).view(np.uint8)
-    border = cv2.BORDER_CONSTANT
-    out = cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=border)
-    linear = cv2.remap(depth, map_x, map_y, cv2.INTER_LINEAR, borderMode=border)
-    use_linear = cv2.remap(smooth, map_x, map_y, cv2.INTER_NEAREST, borderMode=border).view(bool)
-    np.copyto(out, linear, where=use_linear)
-    return out
+    if depth.shape != sampling.render_shape:
+        raise ValueError(f"depth_render is {depth.shape}, the sampling is for {sampling.render_shape}")
+    smooth = _smooth_blocks(depth, rel_tol)
+    out = _resample_depth(depth, smooth, (sampling.nearest, sampling.corner, sampling.fx, sampling.fy))
+    return out.reshape(sampling.shape)
 
 
 def distort_rgbd(
@@ -169,4 +243,5 @@ def distort_rgbd(
     """The distorted (rgb (H, W, 3) same dtype, depth (H, W) float32 m, 0 = invalid) from the pinhole
     renders (Hr, Wr, 3) and (Hr, Wr), both sampled with the same maps (see distort_rgb, distort_depth).
     Depth values need no correction: z along the optical axis is the same for a ray whatever the lens."""
-    return distort_rgb(rgb_render, map_x, map_y), distort_depth(depth_render, map_x, map_y, depth_rel_tol)
+    sampling = depth_sampling(map_x, map_y, np.shape(depth_render)[:2])
+    return distort_rgb(rgb_render, map_x, map_y), distort_depth(depth_render, sampling, depth_rel_tol)

@@ -23,7 +23,14 @@ from sim.image_effects import (
     specular_highlight,
     vignetting,
 )
-from sim.lens import distort_depth, distort_rgb, distortion_maps, render_camera_for
+from sim.lens import (
+    DepthSampling,
+    depth_sampling,
+    distort_depth,
+    distort_rgb,
+    distortion_maps,
+    render_camera_for,
+)
 from sim.model_errors import TrueCell
 from sim.scenario import Scenario
 
@@ -39,6 +46,7 @@ class RealCamera:
         self.intrinsics = k
         self.T_cam_depthmeasured = true_cell.T_cam_depthmeasured
         self._maps: tuple[np.ndarray, np.ndarray] | None = None
+        self._depth_sampling: DepthSampling | None = None
         if any(k.dist):
             K_render, width, height = render_camera_for(k.K, np.array(k.dist), k.width, k.height)
             self._maps = distortion_maps(k.K, np.array(k.dist), k.width, k.height, K_render)
@@ -46,6 +54,7 @@ class RealCamera:
             self.render_intrinsics = CameraIntrinsics(
                 width, height, float(fx), float(fy), float(cx), float(cy)
             )
+            self._depth_sampling = depth_sampling(*self._maps, (height, width))
         else:
             self.render_intrinsics = replace(k, dist=(0.0,) * 5)
         self.depth = errors.depth if errors.depth.enabled else None
@@ -78,7 +87,7 @@ class RealCamera:
             )
         if self._maps is not None:
             rgb = distort_rgb(rgb, *self._maps)
-            depth = distort_depth(depth, *self._maps)
+            depth = distort_depth(depth, self._depth_sampling)
         return rgb, depth
 
     def light(self, rgb: np.ndarray, T_cam_board: np.ndarray, rng: np.random.Generator) -> np.ndarray:

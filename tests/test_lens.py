@@ -8,7 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.lens import distort_rgb, distort_rgbd, distortion_maps, render_camera_for
+from sim.lens import (
+    depth_sampling,
+    distort_depth,
+    distort_rgb,
+    distort_rgbd,
+    distortion_maps,
+    render_camera_for,
+)
 
 K_VGA = np.array([[615.0, 0.0, 322.5], [0.0, 612.0, 238.7], [0.0, 0.0, 1.0]])
 K_HD = np.array([[920.0, 0.0, 641.3], [0.0, 918.0, 361.2], [0.0, 0.0, 1.0]])
@@ -163,4 +170,18 @@ def test_depth_never_mixes_across_edges_or_holes() -> None:
     assert np.any([depth[mixed] == z[mixed] for z, _ in quad], axis=0).all()
     inner = cv2.erode((region == 0).astype(np.uint8), np.ones((7, 7), np.uint8))[y0, x0].astype(bool)
     assert inner.mean() > 0.5
-    np.testing.assert_allclose(depth[inner], 1.0 + 1e-3 * map_x[inner], atol=3e-5)
+    # Exact bilinear: a plane linear in u is reproduced to float32 rounding (OpenCV's remap, which
+    # quantises the sampling point to 1/32 px, missed it by up to 3e-5 m).
+    np.testing.assert_allclose(depth[inner], 1.0 + 1e-3 * map_x[inner].astype(np.float64), atol=5e-7)
+
+
+def test_depth_sampling_refuses_a_render_of_another_size() -> None:
+    K, dist, W, H, K_r, W_r, H_r, map_x, map_y = _camera("vga-barrel")
+    sampling = depth_sampling(map_x, map_y, (H_r, W_r))
+    assert sampling.shape == (H, W) and sampling.render_shape == (H_r, W_r)
+    assert (sampling.nearest >= 0).all()  # the render's margin holds every map point
+    with pytest.raises(ValueError, match="sampling is for"):
+        distort_depth(np.ones((H_r - 1, W_r), np.float32), sampling)
+    # A map point beyond the render's pixel centres gives an invalid pixel, not a read past the render.
+    outside = depth_sampling(map_x + W_r, map_y, (H_r, W_r))
+    assert (distort_depth(np.ones((H_r, W_r), np.float32), outside) == 0.0).all()
