@@ -230,27 +230,47 @@ def misregister_depth(
     return out
 
 
+@compiled_inline
+def _valid(z: float) -> bool:
+    """A depth that was measured: positive and finite (NaN is not). Branch-free."""
+    return (z > np.float32(0.0)) & (z < np.float32(np.inf))
+
+
+@compiled_inline
+def _jump(a: float, b: float, edge_threshold_m: float) -> bool:
+    """Whether depths a and b are both valid and differ by more than edge_threshold_m."""
+    return _valid(a) & _valid(b) & (abs(a - b) > edge_threshold_m)
+
+
+@compiled_inline
+def _at_edge(z: np.ndarray, at: tuple, edge_threshold_m: float) -> bool:
+    """Whether pixel (j, i) of z (H, W) jumps by more than edge_threshold_m to one of its valid
+    neighbours at = (j, i, (up, down), (left, right))."""
+    j, i, (up, down), (left, right) = at
+    c, t = z[j, i], edge_threshold_m
+    return (
+        _jump(c, z[j, left], t) | _jump(c, z[j, right], t) | _jump(c, z[up, i], t) | _jump(c, z[down, i], t)
+    )
+
+
 @compiled
-def _edge_pixels(z: np.ndarray, valid: np.ndarray, edge_threshold_m: float) -> np.ndarray:
+def _edge_pixels(z: np.ndarray, edge_threshold_m: float) -> np.ndarray:
     """(H, W) uint8, 1 on both pixels of every pair of valid 4-neighbours whose depths z (H, W)
-    differ by more than edge_threshold_m."""
+    differ by more than edge_threshold_m: each pixel looks at its four neighbours, branch-free
+    (the interior loop vectorises)."""
     h, w = z.shape
-    edge = np.zeros((h, w), dtype=np.uint8)
+    edge = np.empty((h, w), dtype=np.uint8)
     for j in range(h):
-        for i in range(w):
-            if not valid[j, i]:
-                continue
-            if i + 1 < w and valid[j, i + 1] and abs(z[j, i + 1] - z[j, i]) > edge_threshold_m:
-                edge[j, i] = edge[j, i + 1] = 1
-            if j + 1 < h and valid[j + 1, i] and abs(z[j + 1, i] - z[j, i]) > edge_threshold_m:
-                edge[j, i] = edge[j + 1, i] = 1
+        rows = (max(j - 1, 0), min(j + 1, h - 1))
+        for i in (0, w - 1):  # a clamped neighbour is the pixel itself: no jump
+            edge[j, i] = _at_edge(z, (j, i, rows, (max(i - 1, 0), min(i + 1, w - 1))), edge_threshold_m)
+        for i in range(1, w - 1):
+            edge[j, i] = _at_edge(z, (j, i, rows, (i - 1, i + 1)), edge_threshold_m)
     return edge
 
 
 @compiled
-def _window_depths(
-    z: np.ndarray, valid: np.ndarray, pixels: np.ndarray, width_px: int
-) -> tuple[np.ndarray, np.ndarray]:
+def _window_depths(z: np.ndarray, pixels: np.ndarray, width_px: int) -> tuple[np.ndarray, np.ndarray]:
     """The nearest and farthest valid depth of z (H, W) within width_px pixels (Chebyshev) of each
     of the flat pixel indices pixels (N,): two (N,) float32."""
     h, w = z.shape
@@ -260,7 +280,7 @@ def _window_depths(
         j, i = pixels[k] // w, pixels[k] % w
         for jj in range(max(j - width_px, 0), min(j + width_px + 1, h)):
             for ii in range(max(i - width_px, 0), min(i + width_px + 1, w)):
-                if valid[jj, ii]:
+                if _valid(z[jj, ii]):
                     near[k] = min(near[k], z[jj, ii])
                     far[k] = max(far[k], z[jj, ii])
     return near, far
@@ -281,14 +301,14 @@ def flying_pixels(
     fg / bg are the nearest / farthest valid depth within width_px pixels. Other pixels are unchanged.
     """
     z = np.ascontiguousarray(depth_m, dtype=np.float32)
-    valid = np.isfinite(z) & (z > 0.0)
-    edge = _edge_pixels(z, valid, edge_threshold_m)
+    edge = _edge_pixels(z, edge_threshold_m)
     if width_px > 1:
         edge = cv2.dilate(edge, np.ones((2 * width_px - 1, 2 * width_px - 1), dtype=np.uint8))
-    idx = np.flatnonzero(edge.view(bool) & valid)
+        edge &= (z > 0.0) & np.isfinite(z)
+    idx = np.flatnonzero(edge)
     pick = idx[rng.random(idx.size) < probability]
     a = rng.random(pick.size, dtype=np.float32)
-    fg, bg = _window_depths(z, valid, pick, width_px)
+    fg, bg = _window_depths(z, pick, width_px)
     out = z.copy()
     out.ravel()[pick] = fg + a * (bg - fg)
     return out
