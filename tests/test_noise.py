@@ -254,6 +254,16 @@ def test_rgb_blur_and_clipping() -> None:
     assert noisy[:, :20].max() < 128 and noisy[:, 20:].min() > 128
 
 
+@pytest.mark.parametrize("blur_sigma_px", [0.5, 1.5])
+def test_rgb_blur_is_the_gaussian_to_a_fifth_of_a_grey_level(blur_sigma_px: float) -> None:
+    from scipy.ndimage import gaussian_filter
+
+    rgb = np.random.default_rng(4).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    out = apply_rgb_models(rgb, RGBNoise(sigma=0.0, blur_sigma_px=blur_sigma_px), np.random.default_rng(0))
+    exact = gaussian_filter(rgb.astype(float), (blur_sigma_px, blur_sigma_px, 0), mode="mirror", truncate=8.0)
+    assert np.abs(out - exact).max() < 0.5 + 0.2  # rounding, plus the taps left out
+
+
 # --- robot pose ----------------------------------------------------------------------------------
 
 
