@@ -38,8 +38,14 @@ def test_correlated_noise_has_the_set_length_and_unit_variance(length_px: float)
     assert field.dtype == np.float32 and field.shape == (1024, 1024)
     assert autocorrelation_length(field) == pytest.approx(length_px, rel=0.10)
     assert float(field.var()) == pytest.approx(1.0, rel=0.05)
-    # Stationary up to the border: the border rows are as strong as the rest.
-    assert float(np.mean(field[[0, -1], :] ** 2)) == pytest.approx(1.0, rel=0.1)
+    # Stationary up to the border: the outer rows and columns are as strong as the rest. Over 32
+    # fields, since one field's two border rows hold only ~2 * 1024 / L independent values (at L = 8
+    # their mean square scatters by ~0.12 from field to field; here by < 0.03). A field filtered
+    # without its padding would be about half as strong there.
+    rng = np.random.default_rng(4)
+    fields = [correlated_unit_noise((128, 128), length_px, rng) for _ in range(32)]
+    border = np.concatenate([np.concatenate([f[[0, -1], :], f[:, [0, -1]].T]) for f in fields])
+    assert float(np.mean(border**2)) == pytest.approx(1.0, abs=0.15)
 
 
 def test_white_noise_length_below_one_pixel() -> None:

@@ -1,12 +1,14 @@
-"""The quantised Gaussian of sim.fast_normal: unit variance, Gaussian shape and tails, determinism."""
+"""The quantised Gaussian of sim.fast_normal: unit variance, Gaussian shape and tails, determinism,
+and the SplitMix64 levels under it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.special import ndtr
+from scipy.stats import chisquare
 
-from sim.fast_normal import LEVELS, normal_table, quantised_normal
+from sim.fast_normal import LEVELS, normal_table, quantised_normal, splitmix64, uniform_levels
 
 
 def test_table_is_symmetric_increasing_with_unit_variance() -> None:
@@ -38,3 +40,23 @@ def test_same_generator_state_same_draws_and_shape_dtype() -> None:
     assert a.shape == (4, 5, 3) and a.dtype == np.float32
     assert np.array_equal(a, b)
     assert not np.array_equal(a, quantised_normal(np.random.default_rng(8), (4, 5, 3), 2.0))
+
+
+def test_splitmix64_gives_the_published_outputs() -> None:
+    # The reference sequence of SplitMix64 from state 1234567 (as Vigna's splitmix64.c produces it).
+    expected = [6457827717110365317, 3203168211198807973, 9817491932198370423]
+    assert splitmix64(np.uint64(1234567), 3).tolist() == expected
+
+
+def test_levels_are_uniform_and_independent_and_cost_one_draw() -> None:
+    rng = np.random.default_rng(5)
+    levels = uniform_levels(rng, (1 << 22,)).astype(np.int64)
+    for byte in (levels >> 8, levels & 0xFF):  # both halves of every level uniform over 256 values
+        assert chisquare(np.bincount(byte, minlength=256)).pvalue > 1e-4
+    z = (levels - levels.mean()) / levels.std()
+    bound = 5.0 / np.sqrt(z.size)
+    for lag in (1, 2, 3, 4, 640):  # neighbours within one 64-bit output (1-3), across outputs, rows
+        assert abs(np.mean(z[:-lag] * z[lag:])) < bound
+    after_one_draw = np.random.default_rng(5)
+    after_one_draw.bit_generator.random_raw()
+    assert rng.bit_generator.state == after_one_draw.bit_generator.state
