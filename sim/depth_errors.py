@@ -314,6 +314,26 @@ def flying_pixels(
     return out
 
 
+@compiled
+def _cut_ellipses(out: np.ndarray, centre: tuple, axes: tuple, angle: np.ndarray) -> None:
+    """Set to 0, in place, the pixels of out (H, W) whose centres lie inside any of the ellipses:
+    centres (cu, cv) (N,) pixels, semi-axes (a, b) (N,) pixels (a >= b), angle (N,) radians of the
+    a axis from +u towards +v."""
+    h, w = out.shape
+    cu, cv = centre
+    a, b = axes
+    for k in range(cu.size):
+        u0, u1 = max(0, int(np.ceil(cu[k] - a[k]))), min(w, int(np.floor(cu[k] + a[k])) + 1)
+        v0, v1 = max(0, int(np.ceil(cv[k] - a[k]))), min(h, int(np.floor(cv[k] + a[k])) + 1)
+        c, s = np.float32(np.cos(angle[k])), np.float32(np.sin(angle[k]))
+        for v in range(v0, v1):
+            dv = np.float32(v) - np.float32(cv[k])
+            for u in range(u0, u1):
+                du = np.float32(u) - np.float32(cu[k])
+                if ((c * du + s * dv) / a[k]) ** 2 + ((c * dv - s * du) / b[k]) ** 2 <= 1.0:
+                    out[v, u] = 0.0
+
+
 def depth_holes(
     depth_m: np.ndarray, rng: np.random.Generator, holes_per_megapixel: float, mean_radius_px: float
 ) -> np.ndarray:
@@ -331,14 +351,5 @@ def depth_holes(
     cu, cv = rng.uniform(-0.5 - m, w - 0.5 + m, n), rng.uniform(-0.5 - m, h - 0.5 + m, n)
     r, q, ang = rng.gamma(4.0, mean_radius_px / 4.0, n), rng.uniform(0.5, 1.0, n), rng.uniform(0, np.pi, n)
     a, b = r / np.sqrt(q), r * np.sqrt(q)
-    for i in range(n):
-        u0, u1 = max(0, int(np.ceil(cu[i] - a[i]))), min(w, int(np.floor(cu[i] + a[i])) + 1)
-        v0, v1 = max(0, int(np.ceil(cv[i] - a[i]))), min(h, int(np.floor(cv[i] + a[i])) + 1)
-        if u0 >= u1 or v0 >= v1:
-            continue
-        du = np.arange(u0, u1, dtype=np.float32)[None, :] - np.float32(cu[i])
-        dv = np.arange(v0, v1, dtype=np.float32)[:, None] - np.float32(cv[i])
-        c, s = np.float32(np.cos(ang[i])), np.float32(np.sin(ang[i]))
-        inside = ((c * du + s * dv) / a[i]) ** 2 + ((c * dv - s * du) / b[i]) ** 2 <= 1.0
-        out[v0:v1, u0:u1][inside] = 0.0
+    _cut_ellipses(out, (cu, cv), (a, b), ang)
     return out
