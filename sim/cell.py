@@ -237,23 +237,33 @@ class SimCell:
         return float(np.linalg.norm(uv[:, 1:] - uv[:, :1], axis=2).min())
 
     def _hidden_corners(self, corners_board: np.ndarray) -> dict[int, str]:
-        """Markers with a corner whose line of sight hits something else first: ID -> what."""
-        T_world_cam = self.cell.T_world_base @ self.T_base_cam()
-        origin = T_world_cam[:3, 3]
+        """Markers with a corner whose line of sight hits something else first: ID -> what.
+        corners_board: (N, 3) board frame, metres; one batch of rays from the camera."""
+        origin = (self.cell.T_world_base @ self.T_base_cam())[:3, 3]
         T_world_board = self.cell.T_world_board
+        rays = corners_board @ T_world_board[:3, :3].T + T_world_board[:3, 3] - origin
+        distance = np.linalg.norm(rays, axis=1)
+        n = len(rays)
+        geom_id, hit = np.empty(n, dtype=np.int32), np.empty(n)
+        unit = np.ascontiguousarray(rays / distance[:, None]).ravel()
+        mujoco.mj_multiRay(
+            self.model,
+            self.data,
+            origin,
+            unit,
+            None,
+            1,
+            self._camera_body,
+            geom_id,
+            hit,
+            None,
+            n,
+            mujoco.mjMAXVAL,
+        )
         hidden: dict[int, str] = {}
-        geom_id = np.zeros(1, dtype=np.int32)
-        for i, p_board in enumerate(corners_board):
-            target = T_world_board[:3, :3] @ p_board + T_world_board[:3, 3]
-            ray = target - origin
-            distance = np.linalg.norm(ray)
-            hit = mujoco.mj_ray(
-                self.model, self.data, origin, ray / distance, None, 1, self._camera_body, geom_id
-            )
-            if hit >= 0 and hit < distance - 1e-3 and geom_id[0] != self._board_geom:
-                hidden.setdefault(
-                    self.board.marker_ids[i // self.board.points_per_marker], self._geom_label(geom_id[0])
-                )
+        for i in np.flatnonzero((hit >= 0) & (hit < distance - 1e-3) & (geom_id != self._board_geom)):
+            marker = self.board.marker_ids[i // self.board.points_per_marker]
+            hidden.setdefault(marker, self._geom_label(geom_id[i]))
         return hidden
 
     def _collision(self) -> str | None:
