@@ -130,10 +130,13 @@ def _landing(z: np.ndarray, zm: np.ndarray, warp: tuple, at: tuple) -> tuple[int
 
 
 @compiled
-def _splat(z: np.ndarray, H: np.ndarray, Kt: np.ndarray, continuity_m: float) -> np.ndarray:
+def _splat(
+    z: np.ndarray, H: np.ndarray, Kt: np.ndarray, continuity_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The forward warp of misregister_depth: every valid pixel of z (H, W) moved by H, Kt and
-    re-projected to the nearest pixel, nearest surface kept; (H, W) float32, 0 where nothing lands.
-    Where each pixel lands is computed first (a loop that vectorises), then written."""
+    re-projected to the nearest pixel, nearest surface kept; (H, W) float32, 0 where nothing lands,
+    and the flat indices of those empty pixels (E,) int64. Where each pixel lands is computed first
+    (a loop that vectorises), then written."""
     h, w = z.shape
     zm = np.empty((h, w))  # every pixel's new depth z'
     for j in range(h):
@@ -156,21 +159,26 @@ def _splat(z: np.ndarray, H: np.ndarray, Kt: np.ndarray, continuity_m: float) ->
         t = flat_target[k]
         if t >= 0:
             out[t] = min(out[t], flat_landed[k])
+    empty = np.empty(out.size, dtype=np.int64)
+    count = 0
     for k in range(out.size):
         if out[k] == np.inf:
             out[k] = 0.0
-    return out.reshape(h, w)
+            empty[count] = k
+            count += 1
+    return out.reshape(h, w), empty[:count]
 
 
 @compiled
 def _close_cracks(
-    out: np.ndarray, z: np.ndarray, H_inv: np.ndarray, Kt: np.ndarray, continuity_m: float
-) -> None:
-    """One pass of misregister_depth's crack filling on out (H, W) float32, in place; every empty
-    pixel is judged on out as it was before the pass."""
+    out: np.ndarray, empty: np.ndarray, z: np.ndarray, inverse: tuple, continuity_m: float
+) -> np.ndarray:
+    """One pass of misregister_depth's crack filling on out (H, W) float32, in place, over its empty
+    pixels empty (E,) (flat indices): each is judged on out as it was before the pass. inverse:
+    (H_inv, Kt) of the warp. Returns the flat indices of those still empty."""
+    H_inv, Kt = inverse
     h, w = out.shape
     flat = out.ravel()
-    empty = np.flatnonzero(~(flat > 0.0))
     fill = np.zeros(empty.size, dtype=np.float32)  # 0: stays empty
     for n in range(empty.size):
         j, i = empty[n] // w, empty[n] % w
@@ -197,6 +205,7 @@ def _close_cracks(
     for n in range(empty.size):
         if fill[n] > 0.0:
             flat[empty[n]] = fill[n]
+    return empty[~(fill > 0.0)]
 
 
 def misregister_depth(
@@ -221,12 +230,12 @@ def misregister_depth(
     Kd, T = np.asarray(K, dtype=np.float64), np.asarray(T_cam_cammeasured, dtype=np.float64)
     # Homogeneous target pixel z' (u', v', 1) = H z (u, v, 1) + K t; its last entry is the new depth z'.
     H, Kt = Kd @ T[:3, :3] @ np.linalg.inv(Kd), Kd @ T[:3, 3]
-    out = _splat(z, H, Kt, continuity_m)
+    out, empty = _splat(z, H, Kt, continuity_m)
     # Cracks: empty pixels with a pair of opposite neighbours (-, |, both diagonals) on one surface,
     # kept if the inverse warp at the filled depth lands on a source pixel of about that depth.
-    H_inv = np.linalg.inv(H)
+    inverse = (np.linalg.inv(H), Kt)
     for _ in range(2):  # a second pass closes where cracks cross
-        _close_cracks(out, z, H_inv, Kt, continuity_m)
+        empty = _close_cracks(out, empty, z, inverse, continuity_m)
     return out
 
 
