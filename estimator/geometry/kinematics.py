@@ -15,8 +15,6 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import invert
-
 
 @dataclass(frozen=True)
 class URKinematics:
@@ -225,10 +223,32 @@ def has_ur_structure(kin: URKinematics) -> bool:
     )
 
 
+def _dh_steps(kin: URKinematics, joint: int, theta: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) DH transforms of one joint (frame joint -> joint + 1) at the DH angles theta (N,)."""
+    _, a, ca, sa, template = _dh_table(kin)
+    ct, st = np.cos(theta), np.sin(theta)
+    steps = np.repeat(template[joint][None], len(theta), axis=0)
+    steps[:, 0, 0], steps[:, 0, 1], steps[:, 0, 2] = ct, -st * ca[joint], st * sa[joint]
+    steps[:, 1, 0], steps[:, 1, 1], steps[:, 1, 2] = st, ct * ca[joint], -ct * sa[joint]
+    steps[:, 0, 3], steps[:, 1, 3] = a[joint] * ct, a[joint] * st
+    return steps
+
+
+def _rigid_inverse(T: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) inverses of the rigid transforms T (N, 4, 4)."""
+    inverse = np.zeros_like(T)
+    R_t = np.swapaxes(T[:, :3, :3], 1, 2)
+    inverse[:, :3, :3] = R_t
+    inverse[:, :3, 3] = -np.einsum("nij,nj->ni", R_t, T[:, :3, 3])
+    inverse[:, 3, 3] = 1.0
+    return inverse
+
+
 def _ur_closed_form(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray) -> list[np.ndarray]:
     """The closed-form joint solutions (6,) of a UR arm (has_ur_structure) reaching T_base_flange,
-    not refined (up to 8: shoulder, wrist and elbow each one way or the other), each angle at its
-    turn within the limits nearest q_near's; none where an angle has no turn within them."""
+    not refined (up to 8: shoulder, wrist and elbow each one way or the other, in that nesting
+    order), each angle at its turn within the limits nearest q_near's; none where an angle has no
+    turn within them. The branches are computed side by side as arrays."""
     a2, a3, d4, d6 = kin.a[1], kin.a[2], kin.d[3], kin.d[5]
     R, p = T_base_flange[:3, :3], T_base_flange[:3, 3]
     wrist = p - d6 * R[:, 2]  # origin of DH frame 5
@@ -236,31 +256,31 @@ def _ur_closed_form(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.nda
     if radius < abs(d4):
         return []
     psi, phi = math.atan2(wrist[1], wrist[0]), math.asin(d4 / radius)
-    solutions: list[np.ndarray] = []
-    for q1 in (psi + phi, psi + math.pi - phi):
-        z1 = np.array([math.sin(q1), -math.cos(q1), 0.0])
-        c5 = float(np.clip(z1 @ R[:, 2], -1.0, 1.0))
-        for q5 in (math.acos(c5), -math.acos(c5)):
-            s5 = math.sin(q5)
-            if abs(s5) < 1e-9:
-                q6 = float(q_near[5])  # wrist singular: any q6, keep the current one
-            else:
-                v = R.T @ z1
-                q6 = math.atan2(-v[1] / s5, v[0] / s5)
-            frames = dh_frames(kin, np.array([q1, 0.0, 0.0, 0.0, q5, q6]))
-            # T_1_4 = inv(T_0_1) T_base_flange inv(T_4_6), T_4_6 = inv(T_0_4) T_0_6 (rigid inverses)
-            T14 = invert(frames[1]) @ T_base_flange @ invert(invert(frames[4]) @ frames[6])
-            x, y = T14[0, 3], T14[1, 3]
-            c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
-            if abs(c3) > 1.0:
-                continue
-            for q3 in (math.acos(c3), -math.acos(c3)):
-                q2 = math.atan2(y, x) - math.atan2(a3 * math.sin(q3), a2 + a3 * math.cos(q3))
-                q4 = math.atan2(T14[1, 0], T14[0, 0]) - q2 - q3
-                q = _nearest_turns(kin, np.array([q1, q2, q3, q4, q5, q6]), q_near)
-                if q is not None:
-                    solutions.append(q)
-    return solutions
+    shoulder = np.array([psi + phi, psi + math.pi - phi])
+    z1 = np.column_stack([np.sin(shoulder), -np.cos(shoulder), np.zeros(2)])  # (2, 3)
+    c5 = np.arccos(np.clip(z1 @ R[:, 2], -1.0, 1.0))
+    q1 = np.repeat(shoulder, 2)  # (4,): each shoulder with the wrist one way, then the other
+    q5 = np.column_stack([c5, -c5]).ravel()
+    v = np.repeat(z1 @ R, 2, axis=0)  # R^T z1 per branch
+    s5 = np.sin(q5)
+    singular = np.abs(s5) < 1e-9  # wrist singular: any q6, keep the current one
+    s5 = np.where(singular, 1.0, s5)
+    q6 = np.where(singular, q_near[5], np.arctan2(-v[:, 1] / s5, v[:, 0] / s5))
+    # T_1_4 = inv(T_0_1) T_base_flange inv(T_4_6), T_4_6 = T_4_5(q5) T_5_6(q6)
+    T46 = _dh_steps(kin, 4, q5) @ _dh_steps(kin, 5, q6)
+    T14 = _rigid_inverse(_dh_steps(kin, 0, q1)) @ T_base_flange @ _rigid_inverse(T46)
+    x, y = T14[:, 0, 3], T14[:, 1, 3]
+    c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
+    elbow = np.arccos(np.clip(c3, -1.0, 1.0))
+    q3 = np.column_stack([elbow, -elbow])  # (4, 2)
+    q2 = np.arctan2(y, x)[:, None] - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
+    q4 = np.arctan2(T14[:, 1, 0], T14[:, 0, 0])[:, None] - q2 - q3
+    branches = np.column_stack(
+        [np.repeat(q1, 2), q2.ravel(), q3.ravel(), q4.ravel(), np.repeat(q5, 2), np.repeat(q6, 2)]
+    )
+    nearest, within_limits = _nearest_turns(kin, branches, q_near)
+    reached = np.repeat(np.abs(c3) <= 1.0, 2)
+    return list(nearest[reached & within_limits])
 
 
 def ur_ik_nearest_first(
@@ -279,14 +299,13 @@ def ur_ik_nearest_first(
             yield refined.q
 
 
-def _nearest_turns(kin: URKinematics, q: np.ndarray, q_near: np.ndarray) -> np.ndarray | None:
-    """q (6,) with each angle moved by whole turns to the one within the limits nearest q_near's;
-    None when an angle has no turn within them."""
+def _nearest_turns(kin: URKinematics, q: np.ndarray, q_near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """q (N, 6) with each angle moved by whole turns to the one within the limits nearest q_near's
+    (6,), and (N,) whether every angle has a turn within them (where not, the row is meaningless)."""
     turn = 2.0 * np.pi
     nearest = q + turn * np.round((q_near - q) / turn)
-    turns = nearest[:, None] + turn * np.array([-1.0, 0.0, 1.0])  # (6, 3)
+    turns = nearest[:, :, None] + turn * np.array([-1.0, 0.0, 1.0])  # (N, 6, 3)
     inside = (turns >= np.array(kin.q_lower)[:, None]) & (turns <= np.array(kin.q_upper)[:, None])
-    if not inside.any(axis=1).all():
-        return None
     distance = np.where(inside, np.abs(turns - q_near[:, None]), np.inf)
-    return turns[np.arange(6), np.argmin(distance, axis=1)]
+    choice = np.take_along_axis(turns, np.argmin(distance, axis=2)[:, :, None], axis=2)[:, :, 0]
+    return choice, inside.any(axis=2).all(axis=1)
