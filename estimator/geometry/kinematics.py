@@ -15,6 +15,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from estimator.geometry.transforms import invert
+
 
 @dataclass(frozen=True)
 class URKinematics:
@@ -234,16 +236,6 @@ def _dh_steps(kin: URKinematics, joint: int, theta: np.ndarray) -> np.ndarray:
     return steps
 
 
-def _rigid_inverse(T: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) inverses of the rigid transforms T (N, 4, 4)."""
-    inverse = np.zeros_like(T)
-    R_t = np.swapaxes(T[:, :3, :3], 1, 2)
-    inverse[:, :3, :3] = R_t
-    inverse[:, :3, 3] = -np.einsum("nij,nj->ni", R_t, T[:, :3, 3])
-    inverse[:, 3, 3] = 1.0
-    return inverse
-
-
 def _ur_closed_form(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray) -> list[np.ndarray]:
     """The closed-form joint solutions (6,) of a UR arm (has_ur_structure) reaching T_base_flange,
     not refined (up to 8: shoulder, wrist and elbow each one way or the other, in that nesting
@@ -268,7 +260,7 @@ def _ur_closed_form(kin: URKinematics, T_base_flange: np.ndarray, q_near: np.nda
     q6 = np.where(singular, q_near[5], np.arctan2(-v[:, 1] / s5, v[:, 0] / s5))
     # T_1_4 = inv(T_0_1) T_base_flange inv(T_4_6), T_4_6 = T_4_5(q5) T_5_6(q6)
     T46 = _dh_steps(kin, 4, q5) @ _dh_steps(kin, 5, q6)
-    T14 = _rigid_inverse(_dh_steps(kin, 0, q1)) @ T_base_flange @ _rigid_inverse(T46)
+    T14 = invert(_dh_steps(kin, 0, q1)) @ T_base_flange @ invert(T46)
     x, y = T14[:, 0, 3], T14[:, 1, 3]
     c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
     elbow = np.arccos(np.clip(c3, -1.0, 1.0))

@@ -20,9 +20,13 @@ def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def invert(T_a_b: np.ndarray) -> np.ndarray:
-    """Inverse of a (4, 4) rigid transform: returns T_b_a."""
-    R = T_a_b[:3, :3]
-    return make_transform(R.T, -R.T @ T_a_b[:3, 3])
+    """Inverse of a (4, 4) rigid transform, or of each in a stack (..., 4, 4): returns T_b_a."""
+    R_t = np.swapaxes(T_a_b[..., :3, :3], -1, -2)
+    T_b_a = np.zeros(np.shape(T_a_b))
+    T_b_a[..., :3, :3] = R_t
+    T_b_a[..., :3, 3] = (-R_t @ T_a_b[..., :3, 3, None])[..., 0]
+    T_b_a[..., 3, 3] = 1.0
+    return T_b_a
 
 
 def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
