@@ -72,19 +72,28 @@ def light_gradient(rgb: np.ndarray, direction_rad: float, change_across_image: f
     return img * (gv[:, None] + gu[None, :])[:, :, None]
 
 
-def specular_highlight(
-    rgb: np.ndarray, centre_px: tuple[float, float] | np.ndarray, radius_px: float, peak_grey: float
+def highlight_blob(
+    shape: tuple[int, int], centre_px: tuple[float, float] | np.ndarray, radius_px: float, peak_grey: float
 ) -> np.ndarray:
-    """Add a white Gaussian glare blob: peak_grey at centre_px (u, v; may be sub-pixel or off the image),
-    peak_grey / 2 at radius_px (half width at half maximum). Not clipped: it saturates when clipped."""
+    """(H, W) float32 white Gaussian glare blob for an image of shape (H, W): peak_grey at centre_px
+    (u, v; may be sub-pixel or off the image), peak_grey / 2 at radius_px (half width at half maximum)."""
     if radius_px <= 0.0:
         raise ValueError(f"radius_px must be > 0, got {radius_px}")
-    img = _image(rgb)
-    h, w = img.shape[:2]
+    h, w = shape
     a = np.log(2.0) / radius_px**2  # exp(-a r^2) = 1/2 at r = radius_px
     gu = np.exp(-a * (np.arange(w) - centre_px[0]) ** 2).astype(np.float32)
     gv = (peak_grey * np.exp(-a * (np.arange(h) - centre_px[1]) ** 2)).astype(np.float32)
-    return img + (gv[:, None] * gu[None, :])[:, :, None]
+    return np.outer(gv, gu)
+
+
+def specular_highlight(
+    rgb: np.ndarray, centre_px: tuple[float, float] | np.ndarray, radius_px: float, peak_grey: float
+) -> np.ndarray:
+    """Add the white glare blob of highlight_blob to every channel. Not clipped: it saturates when
+    clipped."""
+    img = _image(rgb)
+    blob = highlight_blob(img.shape[:2], centre_px, radius_px, peak_grey)
+    return cv2.add(img, cv2.merge([blob] * 3))
 
 
 def mirror_point(camera_position: np.ndarray, light_position: np.ndarray) -> np.ndarray:
