@@ -5,7 +5,9 @@ Run: .venv/bin/python -m experiments.bench.render [--rounds N]
 Prints the median and 90th percentile per part over the default trajectory for each scenario: IK +
 checks, the RGB + depth render, the real camera (lens, depth misregistration, flying pixels, holes,
 image effects; nothing for the ideal cell) and the sensor noise; then realistic / default per part
-and total / render per scenario. waypoint_times gives the medians to other benchmarks.
+and total / render per scenario, in wall time and in CPU time (the process's, all its threads: Mesa's
+llvmpipe renders on several, OpenCV runs some passes on several; what a sweep with a worker per core
+pays). waypoint_times gives the medians to other benchmarks.
 """
 
 from __future__ import annotations
@@ -25,34 +27,41 @@ from sim.scenario import Scenario, load_scenario
 from sim.simulate import scenario_waypoints
 
 PARTS = ("ik+checks", "render", "real camera", "noise", "total")
+CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
 
-def time_pass(cell: SimCell, times: dict[str, list[float]]) -> None:
-    """One pass over the cell's trajectory: milliseconds per part of every captured waypoint appended to
-    times, the steps of SimCell.capture timed apart."""
+def _now() -> np.ndarray:
+    """(2,) seconds on the wall and the process's CPU clock (CLOCKS' order)."""
+    return np.array([clock() for clock in CLOCKS.values()])
+
+
+def time_pass(cell: SimCell, times: dict[str, dict[str, list[float]]]) -> None:
+    """One pass over the cell's trajectory: milliseconds per clock (CLOCKS) and part (PARTS) of every
+    captured waypoint appended to times[clock][part], the steps of SimCell.capture timed apart."""
     camera, noise, rng = cell.camera, cell.scenario.noise, cell.rng
     for waypoint in scenario_waypoints(cell.scenario):
-        t0 = time.perf_counter()
+        t0 = _now()
         try:
             cell.move_to(waypoint)
         except WaypointRejected:
             continue
-        t1 = time.perf_counter()
+        t1 = _now()
         rgb, depth = cell.render_true()
-        t2 = time.perf_counter()
+        t2 = _now()
         T_cam_board = invert(cell.T_base_cam()) @ cell.cell.T_base_board
         rgb, depth = camera.view(rgb, depth, rng)
         rgb = camera.light(rgb, T_cam_board, rng)
-        t3 = time.perf_counter()
+        t3 = _now()
         apply_rgb_models(rgb, noise.rgb, rng)
         depth = apply_depth_models(depth, camera.intrinsics, noise, rng, camera.depth_correlation_px())
         cell.flange_pose()
-        t4 = time.perf_counter()
+        t4 = _now()
         camera.holes(depth, rng)  # a real-camera effect, applied after the noise
-        t5 = time.perf_counter()
+        t5 = _now()
         parts = (t1 - t0, t2 - t1, t3 - t2 + t5 - t4, t4 - t3, t5 - t0)
-        for name, dt in zip(PARTS, parts, strict=True):
-            times[name].append(dt * 1000)
+        for name, seconds in zip(PARTS, parts, strict=True):
+            for clock, dt in zip(CLOCKS, seconds, strict=True):
+                times[clock][name].append(dt * 1000)
 
 
 def scenarios() -> dict[str, Scenario]:
@@ -63,11 +72,11 @@ def scenarios() -> dict[str, Scenario]:
     }
 
 
-def time_waypoints(rounds: int) -> dict[str, dict[str, list[float]]]:
-    """Milliseconds per part (PARTS) of every captured waypoint, per scenario (see scenarios),
-    over rounds passes of the trajectory that alternate between the scenarios."""
+def time_waypoints(rounds: int) -> dict[str, dict[str, dict[str, list[float]]]]:
+    """Milliseconds of every captured waypoint per scenario (see scenarios), clock (CLOCKS) and part
+    (PARTS), over rounds passes of the trajectory that alternate between the scenarios."""
     cells = {name: SimCell(s, np.random.default_rng(0)) for name, s in scenarios().items()}
-    results: dict[str, dict[str, list[float]]] = {name: {part: [] for part in PARTS} for name in cells}
+    results = {name: {clock: {part: [] for part in PARTS} for clock in CLOCKS} for name in cells}
     for cell in cells.values():
         cell.render_true()  # warm-up: GL context and texture upload
     for _ in range(rounds):  # alternating, so that a change in the machine's load hits both alike
@@ -78,12 +87,14 @@ def time_waypoints(rounds: int) -> dict[str, dict[str, list[float]]]:
     return results
 
 
-def waypoint_times(rounds: int) -> dict[str, dict[str, float]]:
-    """Median milliseconds per waypoint, per scenario ("default", "realistic") and part (PARTS),
-    over rounds passes of the trajectory; e.g. ["default"]["total"] / ["default"]["render"]."""
+def waypoint_times(rounds: int) -> dict[str, dict[str, dict[str, float]]]:
+    """Median milliseconds per waypoint, per scenario ("default", "realistic"), clock (CLOCKS) and
+    part (PARTS), over rounds passes of the trajectory; e.g. ["default"]["cpu"]["render"]."""
     return {
-        name: {part: float(np.median(t)) for part, t in parts.items()}
-        for name, parts in time_waypoints(rounds).items()
+        name: {
+            clock: {part: float(np.median(t)) for part, t in parts.items()} for clock, parts in clocks.items()
+        }
+        for name, clocks in time_waypoints(rounds).items()
     }
 
 
@@ -93,17 +104,19 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     results = time_waypoints(args.rounds)
     k = Scenario().camera
-    views = ", ".join(f"{name} {len(r['total'])}" for name, r in results.items())
-    print(f"ms per waypoint at {k.width}x{k.height} ({views} waypoints), median (p90):")
-    print(f"  {'part':12s}{'default':>16s}{'realistic':>16s}   realistic / default")
-    for part in PARTS:
-        d, r = results["default"][part], results["realistic"][part]
-        ratio = f"{np.median(r) / np.median(d):5.2f}x" if np.median(d) >= 1.0 else "    -"
-        print(f"  {part:12s}{_cell(d)}{_cell(r)}   {ratio}")
-    ratios = ", ".join(
-        f"{name} {np.median(r['total']) / np.median(r['render']):.2f}x" for name, r in results.items()
-    )
-    print(f"  total / render: {ratios}")
+    views = ", ".join(f"{name} {len(r['wall']['total'])}" for name, r in results.items())
+    for clock in CLOCKS:
+        print(f"{clock} ms per waypoint at {k.width}x{k.height} ({views} waypoints), median (p90):")
+        print(f"  {'part':12s}{'default':>16s}{'realistic':>16s}   realistic / default")
+        for part in PARTS:
+            d, r = results["default"][clock][part], results["realistic"][clock][part]
+            ratio = f"{np.median(r) / np.median(d):5.2f}x" if np.median(d) >= 1.0 else "    -"
+            print(f"  {part:12s}{_cell(d)}{_cell(r)}   {ratio}")
+        ratios = ", ".join(
+            f"{name} {np.median(r[clock]['total']) / np.median(r[clock]['render']):.2f}x"
+            for name, r in results.items()
+        )
+        print(f"  total / render: {ratios}")
 
 
 def _cell(times_ms: list[float]) -> str:

@@ -3,14 +3,16 @@ a shared 2-core machine vary from run to run; the ratios much less).
 
 Run: .venv/bin/python -m experiments.bench.speed [--rounds 3] [--dask-trials 10000]
 Prints, with its parts and its goal:
-  waypoint      a whole simulated waypoint / MuJoCo's render of it, default and realistic scenario
-                (experiments.bench.render)
+  waypoint      a whole simulated waypoint / MuJoCo's render of it, default and realistic scenario,
+                in wall time and in CPU time (experiments.bench.render)
   render trial  a render-fidelity sweep trial (17 views, ekf and Park) / simulating and detecting
                 its views in memory (experiments.sweep.trials.render_inputs)
   estimators    ekf / OpenCV's Park with its PnP poses; batch in ms (17 views x 8 markers,
                 experiments.bench.estimators.time_against_park)
-  workers       sweep trials per second on 2 worker processes / on 1 at both fidelities, after each
-                worker's start-up (imports, GL context), and the peak memory of a worker
+  workers       sweep trials per second on 2 worker processes / on 1 at both fidelities, the two
+                pools taking turns (see worker_speedup), beside the same ratio for a CPU-bound
+                pure-Python loop on the same pools (the machine's own ceiling: its two cores are
+                not one core twice), and the largest worker's peak memory
   dask          with --dask-trials N: a measurement sweep of N trials on a local Dask cluster of 2
                 workers, the memory of this process and of the workers as it runs
 """
@@ -18,19 +20,22 @@ Prints, with its parts and its goal:
 from __future__ import annotations
 
 import argparse
-import resource
+import os
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from experiments.sweep.config import SweepConfig, cell_scenario, load_config
 from experiments.sweep.parameters import MEASUREMENTS, RENDER
-from experiments.sweep.trials import TrialTask, render_inputs, run_trial, tasks_for
+from experiments.sweep.trials import render_inputs, run_trial, tasks_for
 
 TRIAL_METHODS = '["ekf", "opencv-park"]'
+BUSY_LOOP_ITERATIONS, BUSY_LOOPS_PER_TURN = 3_000_000, 6
+WORKER_ROUNDS = 4
 GOALS = {"waypoint": 2.0, "render trial": 2.0, "ekf / park": 3.0, "batch ms": 100.0, "workers": 1.85}
 
 
@@ -61,32 +66,88 @@ def trial_times(folder: Path, rounds: int, seed: int) -> dict[str, float]:
     return {"trial": float(np.median(trial)), "views": float(np.median(views))}
 
 
-def _trials_per_second(pool: ProcessPoolExecutor, tasks: list[TrialTask], workers: int) -> float:
-    """Throughput of the pool on tasks, after a first trial on each worker (its start-up), while
-    every worker is busy: up to the completion that leaves a worker without a trial to start (the
-    last workers - 1 trials run beside idle workers, which a long sweep does not see)."""
-    list(pool.map(run_trial, tasks[:workers]))
-    start = time.perf_counter()
-    measured = tasks[workers:]
-    busy = len(measured) - workers + 1
-    for done, _ in enumerate(as_completed([pool.submit(run_trial, task) for task in measured]), 1):
-        if done == busy:
-            return busy / (time.perf_counter() - start)
-    raise ValueError(f"{len(measured)} trials are too few to measure {workers} workers")
+def busy_loop(iterations: int) -> int:
+    """The machine's reference task: pure Python arithmetic in a few KiB (no memory traffic, no
+    libraries), about 0.1 s per million iterations here."""
+    total = 0
+    for i in range(iterations):
+        total += i * i % 7
+    return total
+
+
+def peak_rss_mib() -> float:
+    """This process's peak resident memory, MiB: Linux's VmHWM, counted from the process's exec.
+    (getrusage's ru_maxrss also counts the parent's memory at the fork of a spawned worker.)"""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise OSError("/proc/self/status has no VmHWM (not Linux)")
+
+
+def timed_task(work: Callable, task: Any) -> tuple[int, float, float, float]:
+    """work(task) in a pool worker: the worker's pid, the start and end time.time() of the task, and
+    the worker's peak memory after it (MiB)."""
+    start = time.time()
+    work(task)
+    return os.getpid(), start, time.time(), peak_rss_mib()
+
+
+def busy_rate(spans: list[tuple[int, float, float, float]], workers: int) -> float:
+    """Tasks per second of a pool of workers while every worker was busy, from the spans of
+    timed_task: from the last worker's first start to the first worker's last end, each task
+    counted by the fraction of its time inside that window. (Counting only the tasks completed up to
+    the first idle worker leaves out the others' tasks in progress: 2 workers in step on 24 tasks
+    come out 4 % slow.)"""
+    by_worker: dict[int, list[tuple[float, float]]] = {}
+    for pid, start, end, _ in spans:
+        by_worker.setdefault(pid, []).append((start, end))
+    if len(by_worker) != workers:
+        raise ValueError(f"{len(spans)} tasks ran on {len(by_worker)} of {workers} workers: too few")
+    t0 = max(min(start for start, _ in tasks) for tasks in by_worker.values())
+    t1 = min(max(end for _, end in tasks) for tasks in by_worker.values())
+    if t1 <= t0:
+        raise ValueError(f"{len(spans)} tasks never kept all {workers} workers busy at once: too few")
+    done = sum(max(0.0, min(end, t1) - max(start, t0)) / (end - start) for _, start, end, _ in spans)
+    return done / (t1 - t0)
 
 
 def worker_speedup(folder: Path, fidelity: str, trials: int, seed: int) -> dict[str, float]:
-    """Trials per second on 1 and on 2 local worker processes (as `hec sweep` starts them) and the
-    peak resident memory of the largest worker so far, MiB."""
+    """Trials per second on 1 and on 2 local worker processes (as `hec sweep` starts them) and their
+    ratio; the same ratio for busy_loop (what this machine gives two processes that share nothing:
+    its two cores are not one core twice); the largest worker's peak memory, MiB.
+
+    Both pools stay up and take turns, WORKER_ROUNDS times (the machine's speed drifts over
+    minutes), after each worker's first trial (imports, GL context): per turn the next
+    trials / WORKER_ROUNDS trials on 1 worker and each of them twice on 2, then BUSY_LOOPS_PER_TURN
+    busy loops per worker. Rates are busy_rate's; each ratio is the 2-worker pool's mean rate over the turns
+    over the 1-worker pool's."""
     from experiments.sweep.runner import local_pool
 
-    tasks = tasks_for(sweep_config(folder, fidelity, trials + 2, seed))
-    rates = {}
-    for workers in (1, 2):
-        with local_pool(workers) as pool:
-            rates[workers] = _trials_per_second(pool, tasks, workers)
-    peak_mib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    return {"1 worker": rates[1], "2 workers": rates[2], "ratio": rates[2] / rates[1], "peak_mib": peak_mib}
+    tasks = tasks_for(sweep_config(folder, fidelity, trials, seed))
+    per_turn = -(-trials // WORKER_ROUNDS)
+    rates: dict[tuple[str, int], list[float]] = {}
+    peaks = [0.0]
+    with local_pool(1) as one, local_pool(2) as two:
+        pools = {1: one, 2: two}
+        for workers, pool in pools.items():
+            list(pool.map(run_trial, tasks[:workers]))
+        for turn in range(WORKER_ROUNDS):
+            chunk = tasks[turn * per_turn : (turn + 1) * per_turn]
+            loops = [BUSY_LOOP_ITERATIONS] * BUSY_LOOPS_PER_TURN
+            for workers, pool in pools.items():
+                for name, work, batch in (("trials", run_trial, chunk), ("loop", busy_loop, loops)):
+                    futures = [pool.submit(timed_task, work, task) for task in batch * workers]
+                    spans = [future.result() for future in futures]
+                    rates.setdefault((name, workers), []).append(busy_rate(spans, workers))
+                    peaks.extend(span[3] for span in spans)
+    mean = {key: float(np.mean(r)) for key, r in rates.items()}
+    return {
+        "1 worker": mean["trials", 1],
+        "2 workers": mean["trials", 2],
+        "ratio": mean["trials", 2] / mean["trials", 1],
+        "machine": mean["loop", 2] / mean["loop", 1],
+        "peak_mib": max(peaks),
+    }
 
 
 def dask_memory(folder: Path, trials: int, seed: int, every_s: float = 5.0) -> list[dict[str, float]]:
@@ -143,15 +204,21 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3, help="repetitions of each timing (median)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--worker-trials", type=int, default=24, help="render trials per worker count")
+    parser.add_argument(
+        "--worker-trials",
+        type=int,
+        default=24,
+        help="render trials per worker count (5x as many measurement trials)",
+    )
     parser.add_argument(
         "--dask-trials", type=int, default=0, help="also run a Dask sweep of this many trials"
     )
     args = parser.parse_args(argv)
     print("ratio          value    goal           parts")
-    for scenario, parts in waypoint_times(args.rounds).items():
-        text = ", ".join(f"{k} {v:.1f}" for k, v in parts.items())
-        _line("waypoint", parts["total"] / parts["render"], f"{scenario} (ms): {text}")
+    for scenario, clocks in waypoint_times(args.rounds).items():
+        for clock, parts in clocks.items():
+            text = ", ".join(f"{k} {v:.1f}" for k, v in parts.items())
+            _line("waypoint", parts["total"] / parts["render"], f"{scenario}, {clock} ms: {text}")
     with tempfile.TemporaryDirectory(prefix="hec-bench-speed-") as folder:
         _print_trials_and_workers(Path(folder), args)
         if args.dask_trials:
@@ -181,7 +248,8 @@ def _print_trials_and_workers(folder: Path, args: argparse.Namespace) -> None:
     for fidelity, trials in ((MEASUREMENTS, 5 * args.worker_trials), (RENDER, args.worker_trials)):
         w = worker_speedup(folder, fidelity, trials, args.seed)
         rates = f"{w['1 worker']:.2f} and {w['2 workers']:.2f} trials/s"
-        text = f"{fidelity}: {rates}; worker peak {w['peak_mib']:.0f} MiB"
+        machine = f"a CPU-bound loop {w['machine']:.2f}"
+        text = f"{fidelity}: {rates} ({machine} on the same pools); worker peak {w['peak_mib']:.0f} MiB"
         _line("workers", w["ratio"], text)
 
 
