@@ -129,6 +129,7 @@ def test_rerun_reproduces_one_trial(
     ("text", "key"),
     [
         ("trials = 0\n", "'trials'"),
+        ('paired = "yes"\n', "'paired'"),
         ("colour = 1\n", "'colour'"),
         ('methods = ["ekf", "nope"]\n', "'methods[1]'"),
         ("[grid]\npixel_sigma_px = [0.3, -1.0]\n", "'grid.pixel_sigma_px[1]'"),
@@ -201,3 +202,42 @@ def test_a_board_in_the_grid_reaches_each_cell_and_an_unknown_one_is_named(tmp_p
     path.write_text(path.read_text().replace("wide.json", "missing.json"))
     with pytest.raises(SweepConfigError, match="missing.json"):
         load_config(path)
+
+
+@pytest.mark.parametrize("paired", [True, False])
+def test_paired_trials_draw_alike_in_every_cell(tmp_path: Path, paired: bool) -> None:
+    # Two cells with the same parameters: paired, trial t is the same trial in both (mount, views,
+    # noise); unpaired, each cell draws its own.
+    path = tmp_path / "paired.toml"
+    path.write_text(
+        f'seed = 3\npaired = {str(paired).lower()}\ntrials = 2\nmethods = ["opencv-park"]\n'
+        '[fixed]\nmount = "random"\n[grid]\ndepth_bias_scale = [1.0, 1.0]\n'
+    )
+    run_sweep(load_config(path), tmp_path / "out", workers=1, progress=False)
+    rows = {(r["cell"], r["seed"]): r["error_translation_mm"] for r in load_rows(tmp_path / "out")}
+    cells = sorted({cell for cell, _ in rows})
+    if paired:
+        assert sorted(rows) == [(c, s) for c in cells for s in ("3/0", "3/1")]
+        assert all(rows[cells[0], s] == rows[cells[1], s] for s in ("3/0", "3/1"))
+    else:
+        assert sorted(rows) == [(c, f"3/{i}/{t}") for i, c in enumerate(cells) for t in (0, 1)]
+        assert all(rows[cells[0], f"3/0/{t}"] != rows[cells[1], f"3/1/{t}"] for t in (0, 1))
+    meta = json.loads((tmp_path / "out" / "sweep.json").read_text())
+    assert meta["config"]["paired"] is paired and ("[seed, trial]" in meta["trial_seed"]) is paired
+
+
+def test_a_folder_from_before_the_paired_key_resumes_as_unpaired(
+    small: tuple[Path, Path, list[dict]], tmp_path: Path
+) -> None:
+    config, local_out, local = small
+    out = tmp_path / "old"
+    shutil.copytree(local_out, out)
+    meta = json.loads((out / "sweep.json").read_text())
+    del meta["config"]["paired"]
+    (out / "sweep.json").write_text(json.dumps(meta))
+    outcome = run_sweep(load_config(config), out, workers=1, resume=True, progress=False)
+    assert (outcome.skipped, outcome.computed) == (TRIALS, 0)
+    paired = tmp_path / "paired.toml"
+    paired.write_text("paired = true\n" + config.read_text())
+    with pytest.raises(SweepError, match="config.paired"):
+        run_sweep(load_config(paired), out, workers=1, resume=True, progress=False)

@@ -58,7 +58,7 @@ def trial_times(folder: Path, rounds: int, seed: int) -> dict[str, float]:
         start = time.perf_counter()
         run_trial(task)
         trial.append(time.perf_counter() - start)
-        rng = np.random.default_rng([task.seed, task.cell_index, task.trial])
+        rng = np.random.default_rng(task.seed_list)
         scenario = cell_scenario(task.scenario, task.base_dir, task.parameters)
         start = time.perf_counter()
         render_inputs(task, scenario, rng)

@@ -4,6 +4,7 @@ A sweep runs ``trials`` trials in every cell of a grid and every method on each 
 
     fidelity = "measurements"   # or "render"
     seed = 0                    # root seed; trial t of cell c draws from default_rng([seed, c, t])
+    paired = false              # true: trial t draws from default_rng([seed, t]) in every cell
     trials = 100                # trials per cell
     methods = "all"             # or a list of names from estimator.solve.methods.METHODS
     scenario = "cell.toml"      # optional scenario file (relative to this file); default: built-in
@@ -17,6 +18,11 @@ A sweep runs ``trials`` trials in every cell of a grid and every method on each 
 
     [grid]                      # lists; every combination (with the levels as one more axis)
     trajectory = ["paper", "rotation-rich"]
+
+Paired trials compare cells trial by trial: trial t of every cell draws the same mount (with
+``mount = "random"``) and views, and the same noise wherever the cells consume random numbers
+alike, so a difference between two cells is the parameters' and not the draws' (common random
+numbers). Unpaired (the default, as before) every cell draws its own.
 
 The cells are the levels (outermost) times the grid axes in file order. A parameter
 not named takes its default: the scenario's value (noise, trajectory kind) or the one
@@ -45,7 +51,7 @@ from experiments.sweep.parameters import (
 )
 from sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
 
-TOP_LEVEL_KEYS = ("fidelity", "seed", "trials", "methods", "scenario", "fixed", "levels", "grid")
+TOP_LEVEL_KEYS = ("fidelity", "seed", "paired", "trials", "methods", "scenario", "fixed", "levels", "grid")
 
 
 class SweepConfigError(ValueError):
@@ -123,6 +129,7 @@ class SweepConfig:
     path: Path
     fidelity: str
     seed: int
+    paired: bool
     trials: int
     methods: list[str]
     scenario: Scenario
@@ -143,6 +150,7 @@ class SweepConfig:
         return {
             "fidelity": self.fidelity,
             "seed": self.seed,
+            "paired": self.paired,
             "trials": self.trials,
             "methods": list(self.methods),
             "scenario_file": self.scenario_file,
@@ -216,6 +224,9 @@ def load_config(path: str | Path) -> SweepConfig:
     if fidelity not in FIDELITIES:
         raise _error(path, "fidelity", f"expected 'measurements' or 'render', got {fidelity!r}")
     seed = _int(path, data, "seed", 0, 0)
+    paired = data.get("paired", False)
+    if not isinstance(paired, bool):
+        raise _error(path, "paired", f"expected true or false, got {paired!r}")
     trials = _int(path, data, "trials", 1, 1)
     methods = _methods(path, data.get("methods", "all"))
     scenario_file = data.get("scenario")
@@ -249,7 +260,17 @@ def load_config(path: str | Path) -> SweepConfig:
             seen[k] = section
 
     config = SweepConfig(
-        path, fidelity, seed, trials, methods, scenario, scenario_file, fixed, axes["levels"], axes["grid"]
+        path,
+        fidelity,
+        seed,
+        paired,
+        trials,
+        methods,
+        scenario,
+        scenario_file,
+        fixed,
+        axes["levels"],
+        axes["grid"],
     )
     config.cells = _cells(config)
     return config

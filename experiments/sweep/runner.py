@@ -2,11 +2,11 @@
 and rerun.
 
 Trial t of cell c draws everything (mount, random views, noise) from
-``numpy.random.default_rng([seed, c, t])``, so the results do not depend on where or in
-which order trials run, and one trial can be rerun alone (--rerun c03-t0042). The
-estimators, the detector and MuJoCo are imported where a trial runs (experiments.sweep.trials).
-Each worker process uses one BLAS thread (OPENBLAS_NUM_THREADS=1, also what Dask's nanny
-sets), which keeps the floating-point results identical wherever a trial runs.
+``numpy.random.default_rng([seed, c, t])`` (``[seed, t]`` in a paired sweep), so the results do
+not depend on where or in which order trials run, and one trial can be rerun alone (--rerun
+c03-t0042). The estimators, the detector and MuJoCo are imported where a trial runs
+(experiments.sweep.trials). Each worker process uses one BLAS thread (OPENBLAS_NUM_THREADS=1,
+also what Dask's nanny sets), which keeps the floating-point results identical wherever a trial runs.
 """
 
 from __future__ import annotations
@@ -85,7 +85,11 @@ def _metadata(config: SweepConfig) -> dict:
         "config_file": str(config.path.resolve()),
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "config": config.to_dict(),
-        "trial_seed": "numpy.random.default_rng([seed, cell index, trial]); column seed = 'seed/cell/trial'",
+        "trial_seed": (
+            "numpy.random.default_rng([seed, trial]); column seed = 'seed/trial'"
+            if config.paired
+            else "numpy.random.default_rng([seed, cell index, trial]); column seed = 'seed/cell/trial'"
+        ),
         "trials_total": len(config.cells) * config.trials,
         "columns": row_columns(config.fidelity),
         "parameter_columns": parameter_columns(config.fidelity),
@@ -98,7 +102,7 @@ def _metadata(config: SweepConfig) -> dict:
 def check_same_config(stored: dict, config: SweepConfig, out_dir: Path) -> None:
     """Raise SweepError naming the first field where the folder's sweep differs from config."""
     new = json.loads(json.dumps(config.to_dict()))
-    old = stored.get("config", {})
+    old = {"paired": False, **stored.get("config", {})}  # folders from before the key were unpaired
     for key in new.keys() - {"scenario_base_dir"}:  # the files may have moved; their content may not
         if old.get(key) != new[key]:
             raise SweepError(

@@ -74,11 +74,18 @@ class TrialTask:
     base_dir: str
     keep_dir: str | None = None
     example_dir: str | None = None
+    paired: bool = False
+
+    @property
+    def seed_list(self) -> list[int]:
+        """The trial's seed for numpy.random.default_rng: [seed, trial] when paired (the same in
+        every cell), else [seed, cell_index, trial]."""
+        return [self.seed, self.trial] if self.paired else [self.seed, self.cell_index, self.trial]
 
     @property
     def seed_text(self) -> str:
-        """The derived seed: default_rng([seed, cell_index, trial])."""
-        return f"{self.seed}/{self.cell_index}/{self.trial}"
+        """The seed column: seed_list joined by '/'."""
+        return "/".join(map(str, self.seed_list))
 
 
 def tasks_for(
@@ -99,6 +106,7 @@ def tasks_for(
             base,
             base_dir,
             None if keep_dir is None else str(keep_dir),
+            paired=config.paired,
         )
         for cell in config.cells
         for t in range(config.trials)
@@ -315,7 +323,7 @@ def run_trial(task: TrialTask) -> list[dict]:
         "seed": task.seed_text,
         **task.parameters,
     }
-    rng = np.random.default_rng([task.seed, task.cell_index, task.trial])
+    rng = np.random.default_rng(task.seed_list)
     scenario = cell_scenario(task.scenario, task.base_dir, task.parameters)
     no_crb = (math.nan, math.nan)
     start = time.perf_counter()
