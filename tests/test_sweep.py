@@ -229,7 +229,7 @@ def test_paired_trials_draw_alike_in_every_cell(tmp_path: Path, paired: bool) ->
 def test_a_folder_from_before_the_paired_key_resumes_as_unpaired(
     small: tuple[Path, Path, list[dict]], tmp_path: Path
 ) -> None:
-    config, local_out, local = small
+    config, local_out, _ = small
     out = tmp_path / "old"
     shutil.copytree(local_out, out)
     meta = json.loads((out / "sweep.json").read_text())
