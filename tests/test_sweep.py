@@ -90,12 +90,18 @@ def test_dask_cluster_gives_the_local_rows_bit_for_bit_with_few_trials_in_flight
     assert len(held) == TRIALS and max(held) <= 3  # of 12: the rest waited to be submitted
 
 
+def _copied(small: tuple[Path, Path, list[dict]], folder: Path) -> tuple[Path, Path]:
+    """The small sweep's config file and a copy of its output folder made at folder."""
+    config, local_out, _ = small
+    shutil.copytree(local_out, folder)
+    return config, folder
+
+
 def test_resume_after_a_half_written_line_computes_only_the_missing_trials(
     small: tuple[Path, Path, list[dict]], tmp_path: Path
 ) -> None:
-    config, local_out, local = small
-    out = tmp_path / "resumed"
-    shutil.copytree(local_out, out)
+    config, out = _copied(small, tmp_path / "resumed")
+    local = small[2]
     lines = (out / ROWS_FILE).read_text().splitlines(keepends=True)
     # header, trial c00-t0000 (3 rows), two rows of c00-t0001, half of its third row
     (out / ROWS_FILE).write_text("".join(lines[:6]) + lines[6][:40])
@@ -229,9 +235,7 @@ def test_paired_trials_draw_alike_in_every_cell(tmp_path: Path, paired: bool) ->
 def test_a_folder_from_before_the_paired_key_resumes_as_unpaired(
     small: tuple[Path, Path, list[dict]], tmp_path: Path
 ) -> None:
-    config, local_out, _ = small
-    out = tmp_path / "old"
-    shutil.copytree(local_out, out)
+    config, out = _copied(small, tmp_path / "old")
     meta = json.loads((out / "sweep.json").read_text())
     del meta["config"]["paired"]
     (out / "sweep.json").write_text(json.dumps(meta))
