@@ -3,6 +3,7 @@
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -51,6 +52,27 @@ def test_depth_plane_is_unbiased_and_its_covariance_honest() -> None:
     errors = np.array(errors)
     assert abs(errors.mean()) < 3 * errors.std() / np.sqrt(len(errors))
     assert 0.7 <= np.mean(errors**2) / np.mean(variances) <= 1.4
+
+
+def test_depth_plane_is_the_least_squares_plane_of_its_pixels() -> None:
+    # No outliers and small noise: every valid pixel is an inlier, so the plane must be the SVD
+    # least-squares plane of all of them (the fit solves the normal equations).
+    normal = np.array([0.3, np.sin(np.radians(35)), -np.cos(np.radians(35))])
+    depth = _tilted_plane_depth(normal / np.linalg.norm(normal), np.array([0.0, 0.0, 0.6]))
+    depth *= 1.0 + 1e-4 * np.random.default_rng(1).standard_normal(depth.shape)
+    plane = fit_marker_depth(depth, CORNERS, DepthNoiseModel())
+    rows, cols = np.nonzero(_marker_mask(CORNERS))
+    assert plane.inliers == plane.valid == len(rows)
+    A = np.column_stack([np.ones(len(rows)), cols - plane.origin_px[0], rows - plane.origin_px[1]])
+    expected, *_ = np.linalg.lstsq(A, 1.0 / depth[rows, cols], rcond=None)
+    np.testing.assert_allclose(plane.coeffs, expected, rtol=1e-12, atol=1e-12 * abs(expected[0]))
+
+
+def _marker_mask(corners: np.ndarray) -> np.ndarray:
+    """(480, 640) bool: the pixels fit_marker_depth takes as under the marker."""
+    mask = np.zeros((480, 640), dtype=np.uint8)
+    cv2.fillConvexPoly(mask, np.round(corners * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+    return mask.astype(bool)
 
 
 def test_depth_fit_refuses_an_empty_patch() -> None:
