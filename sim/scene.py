@@ -14,6 +14,7 @@ the image content, and OpenCV's pixel origin is the centre of the first pixel.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import mujoco
@@ -49,6 +50,9 @@ BENT_SHEET_GRID = (41, 23)
 # Rotation taking OpenCV's camera axes to MuJoCo's (x right, y up, looking along -z).
 R_CAM_MJCAM = np.diag([1.0, -1.0, -1.0])
 BOARD_TEXTURE_PX_PER_M = 4000.0
+# Sheet textures kept (_sheet_texture), and the kept ones by board class and definition (JSON).
+SHEET_TEXTURES_KEPT = 4
+_SHEET_TEXTURES: dict[tuple[type, str], np.ndarray] = {}
 # Printed reflectance of the board's paper and ink (the texture's white and black).
 PAPER_REFLECTANCE = 0.85
 INK_REFLECTANCE = 0.06
@@ -207,15 +211,30 @@ def _add_view(body: mujoco.MjsBody, name: str, T_body_cam: np.ndarray, k: Camera
     camera.sensor_size = [k.width * 3e-6, k.height * 3e-6]
 
 
+def _sheet_texture(board: Target) -> np.ndarray:
+    """(H, W, 3) uint8 texture of the printed sheet at BOARD_TEXTURE_PX_PER_M, read-only. Drawing it
+    takes ~0.14 s (a sweep trial builds a scene per trial), so the last few boards' are kept, keyed
+    by the board's class and definition (its to_dict): a board printed with misplaced markers is
+    another."""
+    key = (type(board), json.dumps(board.to_dict(), sort_keys=True))
+    if key not in _SHEET_TEXTURES:
+        # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
+        # inside 8 bits and the camera's noise is not clipped away.
+        coverage = board.image(BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
+        image = np.round(255.0 * (INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * coverage))
+        rgb = np.repeat(image.astype(np.uint8)[:, :, None], 3, axis=2)
+        rgb.flags.writeable = False
+        if len(_SHEET_TEXTURES) >= SHEET_TEXTURES_KEPT:
+            del _SHEET_TEXTURES[next(iter(_SHEET_TEXTURES))]  # the oldest
+        _SHEET_TEXTURES[key] = rgb
+    return _SHEET_TEXTURES[key]
+
+
 def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.ndarray) -> None:
     """The printed sheet as a textured mesh at z = 0 of the board frame (a quad, or a grid when
     it is scaled or bent), on a backing plate."""
     board = printed.printed
-    # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
-    # inside 8 bits and the camera's noise is not clipped away.
-    coverage = board.image(BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
-    image = np.round(255.0 * (INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * coverage))
-    rgb = np.repeat(image.astype(np.uint8)[:, :, None], 3, axis=2)
+    rgb = _sheet_texture(board)
     spec.add_texture(
         name="board",
         type=mujoco.mjtTexture.mjTEXTURE_2D,

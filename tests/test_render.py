@@ -8,6 +8,8 @@ and orientation are checked by decoding the real QR texture.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import zxingcpp
@@ -19,7 +21,7 @@ from estimator.targets.board import BoardDefinition, board_image
 from sim.cell import SimCell
 from sim.noise import depth_sigma
 from sim.scenario import CameraSettings, Scenario
-from sim.scene import BOARD_TEXTURE_PX_PER_M
+from sim.scene import BOARD_TEXTURE_PX_PER_M, INK_REFLECTANCE, PAPER_REFLECTANCE, _sheet_texture
 from sim.simulate import scenario_waypoints
 
 # A camera with unequal focal lengths and an off-centre principal point.
@@ -183,3 +185,17 @@ def test_depth_at_marker_centres_within_three_sigma_of_the_noise_model() -> None
     assert len(z) >= 0.95 * 8 * len(scenario_waypoints(scenario))
     assert np.mean(np.abs(z) <= 3.0) >= 0.98
     assert 0.8 < np.sqrt(np.mean(z**2)) < 1.25
+
+
+def test_a_sheet_texture_is_drawn_once_per_board_definition() -> None:
+    board = Scenario().board_definition()
+    texture = _sheet_texture(board)
+    assert _sheet_texture(board) is texture and not texture.flags.writeable
+    # the texture is the sheet at the renderer's resolution, in the print's reflectances
+    coverage = board_image(board, BOARD_TEXTURE_PX_PER_M)
+    assert texture.shape == (*coverage.shape, 3)
+    assert set(np.unique(texture[..., 0])) >= {round(255 * INK_REFLECTANCE), round(255 * PAPER_REFLECTANCE)}
+    moved = replace(board, marker_centers_m={**board.marker_centers_m, 0: (0.0, 0.0)})
+    assert not np.array_equal(_sheet_texture(moved), texture)
+    solid = _SolidBoard(**{f: getattr(board, f) for f in BoardDefinition.__dataclass_fields__})
+    assert solid.to_dict() == board.to_dict() and not np.array_equal(_sheet_texture(solid), texture)
