@@ -15,6 +15,7 @@ the image content, and OpenCV's pixel origin is the centre of the first pixel.
 from __future__ import annotations
 
 import json
+import threading
 from dataclasses import dataclass
 
 import mujoco
@@ -53,6 +54,7 @@ BOARD_TEXTURE_PX_PER_M = 4000.0
 # Sheet textures kept (_sheet_texture), and the kept ones by board class and definition (JSON).
 SHEET_TEXTURES_KEPT = 4
 _SHEET_TEXTURES: dict[tuple[type, str], np.ndarray] = {}
+_SHEET_TEXTURES_LOCK = threading.Lock()
 # Printed reflectance of the board's paper and ink (the texture's white and black).
 PAPER_REFLECTANCE = 0.85
 INK_REFLECTANCE = 0.06
@@ -217,17 +219,18 @@ def _sheet_texture(board: Target) -> np.ndarray:
     by the board's class and definition (its to_dict): a board printed with misplaced markers is
     another."""
     key = (type(board), json.dumps(board.to_dict(), sort_keys=True))
-    if key not in _SHEET_TEXTURES:
-        # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
-        # inside 8 bits and the camera's noise is not clipped away.
-        coverage = board.image(BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
-        image = np.round(255.0 * (INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * coverage))
-        rgb = np.repeat(image.astype(np.uint8)[:, :, None], 3, axis=2)
-        rgb.flags.writeable = False
-        if len(_SHEET_TEXTURES) >= SHEET_TEXTURES_KEPT:
-            del _SHEET_TEXTURES[next(iter(_SHEET_TEXTURES))]  # the oldest
-        _SHEET_TEXTURES[key] = rgb
-    return _SHEET_TEXTURES[key]
+    with _SHEET_TEXTURES_LOCK:  # Dask may run trials on threads
+        if key not in _SHEET_TEXTURES:
+            # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay
+            # inside 8 bits and the camera's noise is not clipped away.
+            coverage = board.image(BOARD_TEXTURE_PX_PER_M).astype(np.float64) / 255.0
+            image = np.round(255.0 * (INK_REFLECTANCE + (PAPER_REFLECTANCE - INK_REFLECTANCE) * coverage))
+            rgb = np.repeat(image.astype(np.uint8)[:, :, None], 3, axis=2)
+            rgb.flags.writeable = False
+            if len(_SHEET_TEXTURES) >= SHEET_TEXTURES_KEPT:
+                del _SHEET_TEXTURES[next(iter(_SHEET_TEXTURES))]  # the oldest
+            _SHEET_TEXTURES[key] = rgb
+        return _SHEET_TEXTURES[key]
 
 
 def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.ndarray) -> None:
