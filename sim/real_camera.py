@@ -16,11 +16,11 @@ from estimator.geometry.camera import CameraIntrinsics
 from estimator.geometry.transforms import invert
 from sim.depth_errors import depth_holes, flying_pixels, misregister_depth
 from sim.image_effects import (
-    highlight_blob,
     light_gradient,
     mirror_point,
     motion_blur,
     motion_blur_shift,
+    specular_highlight,
     vignetting,
 )
 from sim.lens import (
@@ -143,7 +143,8 @@ def _add_glare(rgb: np.ndarray, centre_px: np.ndarray, radius_px: float, peak_gr
     )
     if left >= right or top >= bottom:
         return rgb
-    patch = rgb[top:bottom, left:right]  # a view: cv2.add writes into rgb (numpy's strided add is 10x slower)
-    blob = highlight_blob(patch.shape[:2], (centre_px[0] - left, centre_px[1] - top), radius_px, peak_grey)
-    cv2.add(patch, cv2.merge([blob] * 3), dst=patch)
+    patch = specular_highlight(
+        rgb[top:bottom, left:right], (centre_px[0] - left, centre_px[1] - top), radius_px, peak_grey
+    )
+    rgb[top:bottom, left:right] = patch
     return rgb
