@@ -1,4 +1,4 @@
-"""The ``hec`` command line. It takes Ctrl-C, SIGTERM and SIGHUP (experiments.interrupts) before it
+"""The ``hec`` command line. It takes Ctrl-C, SIGTERM and SIGHUP (hec.support.interrupts) before it
 imports the commands, whose libraries load for seconds, so a signal while they load is an
 interruption like any other: one line, exit code 128 + the signal number, no traceback."""
 
@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import sys
 
-from experiments import interrupts
+from hec.support import interrupts
+from hec.support.extras import missing_extra_message
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -14,7 +15,7 @@ def main(argv: list[str] | None = None) -> int:
     with interrupts.stop_signals():
         started = None
         try:
-            from experiments import commands
+            from hec.commands import table as commands
 
             args = commands.build_parser().parse_args(argv)
             started = args.command
@@ -23,6 +24,12 @@ def main(argv: list[str] | None = None) -> int:
             what = f"; {started} did not finish" if started else " while starting; nothing done"
             print(f"\nhec: interrupted ({str(exc) or 'Ctrl-C'}){what}", file=sys.stderr)
             return interrupts.interrupted_exit_code(exc)
+        except ModuleNotFoundError as exc:  # an optional part (an extra) that is not installed
+            message = missing_extra_message(exc, started)
+            if message is None:
+                raise
+            print(f"hec: error: {message}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

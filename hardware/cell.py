@@ -9,11 +9,11 @@ from dataclasses import asdict
 
 import numpy as np
 
-from estimator.geometry.waypoints import PlannedMove, Waypoint
-from estimator.io.dataset import Capture, Frame
-from estimator.targets.target import Target
-from hardware.realsense import RealSenseCamera
-from hardware.ur_robot import RobotError, URRobot
+from hec.estimator.geometry.waypoints import PlannedMove, Waypoint
+from hec.estimator.observe.frames import Capture, Frame
+from hec.estimator.targets.target import Target
+from hec.hardware.realsense import RealSenseCamera
+from hec.hardware.ur_robot import RobotError, URRobot
 
 # Largest joint change (rad) between the reads before and after a capture: more means the
 # arm moved while the camera was exposing, and the pose would not belong to the images.

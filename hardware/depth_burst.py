@@ -8,8 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import invert
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import invert
 
 
 class DepthResampler:

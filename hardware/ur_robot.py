@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import invert
+from hec.estimator.geometry.transforms import invert
 
 # UR safety modes (RTDE safety_mode) that stop the arm, in plain words.
 _SAFETY_STOPS = {

@@ -4,6 +4,6 @@ Importing this package chooses the headless OpenGL backend (EGL, else
 OSMesa) before MuJoCo is imported; see sim/gl_backend.py.
 """
 
-from sim.gl_backend import select_gl_backend
+from hec.sim.gl_backend import select_gl_backend
 
 select_gl_backend()

@@ -3,7 +3,7 @@
 This is the same small interface the real cell offers (hardware/), so a
 calibration session cannot tell them apart. The simulator also knows the
 truth: true joint angles and flange pose per frame, the mount and the board pose, and with
-model errors (sim.model_errors) the true kinematics, camera and printed board.
+model errors (hec.sim.model_errors) the true kinematics, camera and printed board.
 """
 
 from __future__ import annotations
@@ -14,23 +14,23 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from estimator.geometry.camera import project
-from estimator.geometry.kinematics import (
+from hec.estimator.geometry.camera import project
+from hec.estimator.geometry.kinematics import (
     IK_RESTARTS,
     forward,
     has_ur_structure,
     solve_ik,
     ur_ik_nearest_first,
 )
-from estimator.geometry.transforms import invert
-from estimator.geometry.waypoints import Waypoint, WaypointRejected
-from estimator.io.dataset import Frame, GroundTruth
-from sim.model_errors import draw_true_cell, reported_intrinsics
-from sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
-from sim.real_camera import RealCamera
-from sim.render import RGBDRenderer
-from sim.scenario import Scenario
-from sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.geometry.waypoints import Waypoint, WaypointRejected
+from hec.estimator.observe.frames import Frame, GroundTruth
+from hec.sim.model_errors import draw_true_cell, reported_intrinsics
+from hec.sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_pose
+from hec.sim.real_camera import RealCamera
+from hec.sim.render import RGBDRenderer
+from hec.sim.scenario import Scenario
+from hec.sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
 
 # Simulated timing: joint speed while moving and the settle time at each waypoint.
 JOINT_SPEED_RAD_S = 0.5
@@ -144,7 +144,7 @@ class SimCell:
 
     def capture(self, rng: np.random.Generator | None = None) -> tuple[Frame, FrameTruth]:
         """Render and apply the sensor models with noise from rng (default: the cell's; see
-        sim.noise.waypoint_rng). Returns the frame and its ground truth."""
+        hec.sim.noise.waypoint_rng). Returns the frame and its ground truth."""
         rng = self.rng if rng is None else rng
         rgb, depth_true = self.camera.view(*self.render_true(), rng)
         T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board

@@ -2,7 +2,7 @@
 
 Spatially correlated noise, depth-to-colour misregistration (an error in the calibrated pose of
 the depth imager), flying pixels at depth edges and blob-shaped holes. numpy/scipy/OpenCV, the
-per-pixel loops compiled (sim.compiled).
+per-pixel loops compiled (hec.sim.compiled).
 
 All randomness comes from the ``numpy.random.Generator`` passed in; the same inputs and generator
 state give bit-identical results. Depth images are (H, W) float32 metres along the optical axis,
@@ -18,8 +18,8 @@ import numpy as np
 from scipy.fft import irfft2, next_fast_len, rfft2
 from scipy.optimize import brentq
 
-from sim.compiled import compiled, compiled_inline
-from sim.fast_normal import quantised_normal
+from hec.sim.compiled import compiled, compiled_inline
+from hec.sim.fast_normal import quantised_normal
 
 _INV_E = float(np.exp(-1.0))
 
@@ -70,7 +70,7 @@ def correlated_unit_noise(
     at lag L = correlation_px pixels (as autocorrelation_length measures it). White noise filtered by
     a Gaussian (sigma ~ L / 2, solved so that the discrete field hits L exactly), generated on a
     padded grid and cropped so the border is as correlated as the centre. L <= 0.5 gives white noise.
-    The white noise is sim.fast_normal's quantised Gaussian.
+    The white noise is hec.sim.fast_normal's quantised Gaussian.
     """
     h, w = shape
     if correlation_px <= 0.5:

@@ -20,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import ndtri
 
-from sim.compiled import compiled
+from hec.sim.compiled import compiled
 
 LEVELS = 65536
 _GOLDEN_GAMMA = np.uint64(0x9E3779B97F4A7C15)

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from sim.compiled import compiled
+from hec.sim.compiled import compiled
 
 # Iterative undistortion to 1e-9 px: cv2.undistortPoints' default 5 iterations leave 1e-3 px (k1 = 0.15)
 # to 0.15 px (k1 = -0.4) of error near the image corners.

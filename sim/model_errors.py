@@ -1,4 +1,4 @@
-"""The true cell behind a scenario's model errors (sim.scenario.ModelErrors): the arm's true
+"""The true cell behind a scenario's model errors (hec.sim.scenario.ModelErrors): the arm's true
 kinematics, the camera's true intrinsics and lens, the depth imager's true registration and the
 board as printed, drawn once per cell from the cell's generator. With every error off the true
 cell is the nominal one and nothing is drawn, so the ideal cell's noise draws are unchanged.
@@ -10,13 +10,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import ROBOTS, URKinematics
-from estimator.geometry.lie import so3_exp
-from estimator.geometry.transforms import make_transform
-from estimator.targets.board import BoardDefinition
-from estimator.targets.target import Target
-from sim.scenario import ArmErrors, BoardErrors, Scenario
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import ROBOTS, URKinematics
+from hec.estimator.geometry.lie import so3_exp
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.targets.board import BoardDefinition
+from hec.estimator.targets.target import Target
+from hec.sim.scenario import ArmErrors, BoardErrors, Scenario
 
 
 @dataclass(frozen=True)

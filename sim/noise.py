@@ -3,8 +3,8 @@
 Depth (D435-like stereo): systematic bias, Gaussian noise growing with z^2,
 invalid pixels at grazing angles and at random, and quantisation to the steps
 of a uint16 depth image. Colour: Gaussian blur and additive Gaussian noise. The
-Gaussian fields are sim.fast_normal's 16-bit quantised ones; arithmetic is float32,
-per pixel in compiled passes (sim.compiled). Robot: a noisy reported flange pose.
+Gaussian fields are hec.sim.fast_normal's 16-bit quantised ones; arithmetic is float32,
+per pixel in compiled passes (hec.sim.compiled). Robot: a noisy reported flange pose.
 numpy/scipy/OpenCV/numba (no MuJoCo).
 
 All randomness comes from the ``numpy.random.Generator`` passed in; the same
@@ -20,14 +20,14 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.depth_png import UINT16_MAX
-from estimator.observe.depth import DepthNoiseModel
-from estimator.solve.problem import RobotPoseNoise as RobotPoseNoiseModel
-from sim.compiled import compiled, compiled_inline
-from sim.depth_errors import correlated_unit_noise
-from sim.fast_normal import normal_table, quantised_normal, uniform_levels
-from sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
+from hec.estimator.common.depth_png import UINT16_MAX
+from hec.estimator.common.noise import RobotPoseNoise as RobotPoseNoiseModel
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.observe.depth import DepthNoiseModel
+from hec.sim.compiled import compiled, compiled_inline
+from hec.sim.depth_errors import correlated_unit_noise
+from hec.sim.fast_normal import normal_table, quantised_normal, uniform_levels
+from hec.sim.scenario import DepthNoise, NoiseSettings, RGBNoise, RobotPoseNoise
 
 # Depths beyond this (e.g. the renderer's far plane where nothing was hit) are invalid, metres.
 MAX_RANGE_M = 10.0
@@ -213,11 +213,11 @@ def _noisy_grey_levels(grey: np.ndarray, levels: np.ndarray, table: np.ndarray) 
 
 def apply_rgb_models(rgb: np.ndarray, settings: RGBNoise, rng: np.random.Generator) -> np.ndarray:
     """The measured colour image: Gaussian blur (sigma blur_sigma_px, pixels), then additive
-    Gaussian noise (std sigma, grey levels; sim.fast_normal's quantised one), rounded and
+    Gaussian noise (std sigma, grey levels; hec.sim.fast_normal's quantised one), rounded and
     clipped to 0..255. The blur keeps the taps of at least 1/1000 of the centre one: 3 at
     sigma 0.5, where OpenCV's default of 5 changes a rendered frame by < 0.17 grey levels.
 
-    rgb: (H, W, 3) uint8, or float32 grey levels (unclipped, as sim.real_camera lights it).
+    rgb: (H, W, 3) uint8, or float32 grey levels (unclipped, as hec.sim.real_camera lights it).
     Returns a new (H, W, 3) uint8 array (unchanged but rounded and clipped when disabled).
     """
     rgb = np.asarray(rgb)

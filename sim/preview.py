@@ -9,11 +9,11 @@ import cv2
 import mujoco
 import numpy as np
 
-from estimator.io.png import write_png
-from sim.render import RGBDRenderer
+from hec.estimator.io.png import write_png
+from hec.sim.render import RGBDRenderer
 
 if TYPE_CHECKING:
-    from sim.cell import SimCell
+    from hec.sim.cell import SimCell
 
 OVERVIEW_SIZE = (1280, 960)
 

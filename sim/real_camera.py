@@ -1,7 +1,7 @@
 """What a real camera and room do to the renderer's ideal view, beyond the white noise of
-sim.noise: lens distortion (the view is rendered through a larger pinhole camera and
+hec.sim.noise: lens distortion (the view is rendered through a larger pinhole camera and
 resampled), depth misregistered to colour, flying pixels and holes, and vignetting, a light
-gradient, a specular highlight, exposure and motion blur (sim.scenario.ModelErrors lens, depth
+gradient, a specular highlight, exposure and motion blur (hec.sim.scenario.ModelErrors lens, depth
 and image). With those sections off nothing here changes the image or draws a random number.
 """
 
@@ -12,10 +12,10 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import invert
-from sim.depth_errors import depth_holes, flying_pixels, misregister_depth
-from sim.image_effects import (
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import invert
+from hec.sim.depth_errors import depth_holes, flying_pixels, misregister_depth
+from hec.sim.image_effects import (
     light_gradient,
     mirror_point,
     motion_blur,
@@ -23,7 +23,7 @@ from sim.image_effects import (
     specular_highlight,
     vignetting,
 )
-from sim.lens import (
+from hec.sim.lens import (
     DepthSampling,
     depth_sampling,
     distort_depth,
@@ -31,8 +31,8 @@ from sim.lens import (
     distortion_maps,
     render_camera_for,
 )
-from sim.model_errors import TrueCell
-from sim.scenario import Scenario
+from hec.sim.model_errors import TrueCell
+from hec.sim.scenario import Scenario
 
 
 class RealCamera:

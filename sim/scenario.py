@@ -14,12 +14,12 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import transform_from_xyz_rpy
-from estimator.io.models import models_dir
-from estimator.io.tomlfile import Section, read_toml, validation_problems
-from estimator.targets.kinds import find_board
-from estimator.targets.target import Target
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import transform_from_xyz_rpy
+from hec.estimator.io.tomlfile import Section, read_toml, validation_problems
+from hec.estimator.targets.kinds import find_board
+from hec.estimator.targets.target import Target
 
 Vector3 = tuple[float, float, float]
 
@@ -256,7 +256,7 @@ class TrajectorySettings(Section):
 
     kind 'rotation-rich' (default): views of the board centre tilted 15-35
     degrees about two board axes and rolled about the optical axis, alternating
-    between 0.9 and 1.25 times distance_m (estimator.geometry.waypoints).
+    between 0.9 and 1.25 times distance_m (hec.estimator.geometry.waypoints).
     kind 'paper': the paper's fixed-orientation translations of 30-40 mm in x, y, z.
     kind 'file': waypoints read from ``file`` (CSV, see the README).
     """

@@ -21,14 +21,14 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import ROBOTS, URKinematics
-from estimator.geometry.lie import so3_exp
-from estimator.geometry.transforms import invert, make_transform, xyz_quat_from_transform
-from estimator.io.models import models_dir
-from estimator.targets.target import Target
-from sim.model_errors import PrintedBoard
-from sim.scenario import ScenarioError
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import ROBOTS, URKinematics
+from hec.estimator.geometry.lie import so3_exp
+from hec.estimator.geometry.transforms import invert, make_transform, xyz_quat_from_transform
+from hec.estimator.targets.target import Target
+from hec.sim.model_errors import PrintedBoard
+from hec.sim.scenario import ScenarioError
 
 CAMERA_NAME = "hec_camera"
 DEPTH_SENSOR_NAME = "hec_depth_sensor"

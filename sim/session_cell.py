@@ -1,18 +1,18 @@
 """The simulated cell behind the calibration session's interface
-(experiments.session.session.SessionCell), as hardware.cell.HardwareCell is the real one."""
+(hec.session.session.SessionCell), as hec.hardware.cell.HardwareCell is the real one."""
 
 from __future__ import annotations
 
-from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
-from estimator.io.dataset import Capture
-from sim.cell import SimCell
-from sim.noise import waypoint_rng
+from hec.estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
+from hec.estimator.observe.frames import Capture
+from hec.sim.cell import SimCell
+from hec.sim.noise import waypoint_rng
 
 
 class SimulatedCell:
     """A SimCell behind the session interface. Planning moves the simulated arm through the
     waypoints and back without drawing noise, and each capture draws the noise of its waypoint
-    (sim.noise.waypoint_rng(noise_seed, waypoint index)), so a session, resumed or not, draws the
+    (hec.sim.noise.waypoint_rng(noise_seed, waypoint index)), so a session, resumed or not, draws the
     same noise as `hec simulate` with the same seed and noise seed. The cell (its model errors) is
     the SimCell's own, drawn from its seed."""
 

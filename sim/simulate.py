@@ -10,19 +10,20 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from estimator.geometry.waypoints import (
+from hec.estimator.geometry.waypoints import (
     Waypoint,
     WaypointRejected,
     paper_waypoints,
     read_waypoint_file,
     rotation_rich_waypoints,
 )
-from estimator.io.dataset import Dataset, DatasetWriter, Frame, GroundTruth
-from estimator.io.memory import dataset_in_memory
-from sim.cell import MIN_MODULE_PX, SimCell
-from sim.noise import depth_noise_model, robot_pose_noise_model, waypoint_rng
-from sim.preview import write_preview
-from sim.scenario import Scenario
+from hec.estimator.io.dataset import DatasetWriter
+from hec.estimator.io.memory import dataset_in_memory
+from hec.estimator.observe.frames import Dataset, Frame, GroundTruth
+from hec.sim.cell import MIN_MODULE_PX, SimCell
+from hec.sim.noise import depth_noise_model, robot_pose_noise_model, waypoint_rng
+from hec.sim.preview import write_preview
+from hec.sim.scenario import Scenario
 
 
 class SimulationError(RuntimeError):
@@ -57,7 +58,7 @@ def simulation_metadata(scenario: Scenario, seed: int, noise_seed: int) -> dict:
 
 
 def _warn_small_markers(module_px: list[float]) -> None:
-    """Say so on stderr when frames show the markers too small to decode (sim.cell.MIN_MODULE_PX)."""
+    """Say so on stderr when frames show the markers too small to decode (hec.sim.cell.MIN_MODULE_PX)."""
     small = [px for px in module_px if px < MIN_MODULE_PX]
     if small:
         tqdm.write(
@@ -122,7 +123,7 @@ def simulate(
     Waypoints that cannot be used are skipped, reported on stderr and listed
     in dataset.json with their reason. ``seed`` drives every noise model: the true cell (its model
     errors: the arm's kinematics, the lens, the printed board) from default_rng(seed), each capture
-    from sim.noise.waypoint_rng(noise_seed, waypoint index), noise_seed default seed (another one: the
+    from hec.sim.noise.waypoint_rng(noise_seed, waypoint index), noise_seed default seed (another one: the
     same cell, new noise in every frame).
     """
     if Path(out_dir).exists() and not Path(out_dir).is_dir():  # --force replaces a dataset, not a file
@@ -163,7 +164,7 @@ def simulate_in_memory(
     scenario: Scenario, seed: int, noise_seed: int | None = None, name: str = "simulation"
 ) -> Dataset:
     """What simulate(scenario, folder, seed, noise_seed=noise_seed) writes, as load_dataset would read
-    it back, without writing anything (estimator.io.memory); no progress bar or preview. Skipped
+    it back, without writing anything (hec.estimator.io.memory); no progress bar or preview. Skipped
     waypoints are said on stderr and listed as in a written dataset. name: what messages call it."""
     waypoints = scenario_waypoints(scenario)
     noise_seed = seed if noise_seed is None else noise_seed

@@ -6,10 +6,10 @@ import contextlib
 import io
 from pathlib import Path
 
-from estimator.geometry.waypoints import write_waypoint_file
-from experiments.cli import main
-from sim.scenario import Scenario
-from sim.simulate import scenario_waypoints
+from hec.cli import main
+from hec.estimator.geometry.waypoints import write_waypoint_file
+from hec.sim.scenario import Scenario
+from hec.sim.simulate import scenario_waypoints
 
 
 def scenario_file(folder: Path, views: int = 2, toml: str = "") -> Path:

@@ -16,13 +16,13 @@ import time
 import numpy as np
 import pyrealsense2 as rs
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import make_transform
-from estimator.io.dataset import encode_depth
-from sim.cell import SimCell
-from sim.noise import apply_depth_models, apply_rgb_models
-from sim.scenario import CameraSettings, Scenario
-from sim.scene import DepthSensor
+from hec.estimator.common.depth_png import encode_depth
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import make_transform
+from hec.sim.cell import SimCell
+from hec.sim.noise import apply_depth_models, apply_rgb_models
+from hec.sim.scenario import CameraSettings, Scenario
+from hec.sim.scene import DepthSensor
 
 SERIAL = "000000000001"
 FPS = 30

@@ -10,7 +10,7 @@ output_int_register_0 (1 ready, 2 done) and returns values in the output
 registers. The commands emulated are listed in ``_COMMAND_NAMES``; any other
 one halts the program, as a script runtime error would.
 
-The arm is a ``sim.cell.SimCell``. ur_rtde's constructors hold the GIL while
+The arm is a ``hec.sim.cell.SimCell``. ur_rtde's constructors hold the GIL while
 they wait for the controller, so the controller cannot be a thread of the
 test process: it runs in a child process, and a bridge thread here applies
 each joint setpoint to the SimCell (under the lock the caller gives) and
@@ -49,10 +49,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.kinematics import URKinematics, forward, jacobian, solve_ik
+from hec.estimator.geometry.kinematics import URKinematics, forward, jacobian, solve_ik
 
 if TYPE_CHECKING:
-    from sim.cell import SimCell
+    from hec.sim.cell import SimCell
 
 RTDE_PORT = 30004
 DASHBOARD_PORT = 29999

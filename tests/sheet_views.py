@@ -6,7 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from estimator.targets.target import Target
+from hec.estimator.targets.target import Target
 
 PX_PER_M = 2000.0  # the sheet's pixels per metre before the view's homography
 

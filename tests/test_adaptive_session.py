@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from estimator.geometry.waypoints import write_waypoint_file
-from estimator.io.dataset import load_dataset
-from experiments.session.adaptive import MIN_STOP_VIEWS
-from experiments.session.record import CALIBRATION_FILE
-from experiments.session.session import LiveEstimate, rss_sigmas
-from sim.scenario import load_scenario
-from sim.simulate import scenario_waypoints
+from hec.commands.record import CALIBRATION_FILE
+from hec.estimator.geometry.waypoints import write_waypoint_file
+from hec.estimator.io.dataset import load_dataset
+from hec.session.adaptive import MIN_STOP_VIEWS
+from hec.session.session import LiveEstimate, rss_sigmas
+from hec.sim.scenario import load_scenario
+from hec.sim.simulate import scenario_waypoints
 from tests.hec_cli import run_hec
 
 TARGET = (0.2, 0.02)  # mm, deg

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.targets.aprilgrid import TAG_CORNER_FLOOR_PX, AprilGridBoard, AprilGridDetector, tag_cells
-from estimator.targets.kinds import board_from_dict, detector_for, find_board, load_board
-from estimator.targets.target import BoardDefinitionError
+from hec.estimator.targets.aprilgrid import TAG_CORNER_FLOOR_PX, AprilGridBoard, AprilGridDetector, tag_cells
+from hec.estimator.targets.kinds import board_from_dict, detector_for, find_board, load_board
+from hec.estimator.targets.target import BoardDefinitionError
 from tests.sheet_views import (
     PX_PER_M,
     apply,

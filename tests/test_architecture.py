@@ -1,6 +1,8 @@
-"""The layout's rules: dependencies point one way (experiments -> sim | hardware -> estimator),
-no project modules import each other in a circle, no project file is over 500 lines, and the
-real cell's path runs without MuJoCo or any OpenGL library."""
+"""The layout's rules. Everything installs under the one namespace hec (the repository's folders
+mapped into it: experiments -> hec, sim -> hec.sim, estimator -> hec.estimator, hardware ->
+hec.hardware). Dependencies point one way, between the folders and between the subpackages inside
+them (LAYERS); no two modules and no two subpackages import each other in a circle; no project
+file is over 500 lines; and the real cell's path runs without MuJoCo or any OpenGL library."""
 
 from __future__ import annotations
 
@@ -19,43 +21,70 @@ import pytest
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 
 REPO = Path(__file__).resolve().parent.parent
-PACKAGES = ("estimator", "sim", "hardware", "experiments")
+# Folder -> the name it installs under.
+FOLDERS = {"experiments": "hec", "sim": "hec.sim", "estimator": "hec.estimator", "hardware": "hec.hardware"}
 MAX_LINES = 500
-# What each package may import from the project (besides itself).
-ALLOWED = {
-    "estimator": set(),
-    "sim": {"estimator"},
-    "hardware": {"estimator"},
-    "experiments": {"estimator", "sim", "hardware"},
+_ESTIMATOR = ("hec.estimator", "hec.estimator.common", "hec.estimator.geometry")
+_ESTIMATOR_ALL = (*_ESTIMATOR, *(f"hec.estimator.{s}" for s in ("targets", "observe", "solve", "io")))
+_BELOW_COMMANDS = ("hec.support", "hec.calibration", "hec.session", "hec.sweep", "hec.regress")
+# What each unit (a subpackage, or a package's own top-level modules) may import besides itself.
+# The estimator's floors: common (file helpers, shared types) at the bottom, then geometry, then
+# targets and observe, then solve; file formats (io) above the maths. sim never imports the solver.
+LAYERS: dict[str, tuple[str, ...]] = {
+    "hec.estimator": (),
+    "hec.estimator.common": (),
+    "hec.estimator.geometry": ("hec.estimator.common",),
+    "hec.estimator.targets": _ESTIMATOR,
+    "hec.estimator.observe": (*_ESTIMATOR, "hec.estimator.targets"),
+    "hec.estimator.solve": (*_ESTIMATOR, "hec.estimator.targets", "hec.estimator.observe"),
+    "hec.estimator.io": _ESTIMATOR_ALL,
+    "hec.sim": tuple(u for u in _ESTIMATOR_ALL if u != "hec.estimator.solve"),
+    "hec.hardware": _ESTIMATOR_ALL,
+    "hec.support": (*_ESTIMATOR_ALL, "hec.sim"),
+    "hec.calibration": (*_ESTIMATOR_ALL, "hec.support"),
+    "hec.session": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", "hec.support", "hec.calibration"),
+    "hec.sweep": (*_ESTIMATOR_ALL, "hec.sim", "hec.support", "hec.calibration"),
+    "hec.regress": (*_ESTIMATOR_ALL, "hec.sim", "hec.support"),
+    "hec.commands": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", *_BELOW_COMMANDS),
+    "hec": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", *_BELOW_COMMANDS, "hec.commands"),
+    # The benchmarks (not installed) may use anything but the command line.
+    "hec.bench": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", *_BELOW_COMMANDS, "hec.commands"),
 }
 REAL_CELL_MODULES = (
-    "hardware.cell",
-    "hardware.realsense",
-    "hardware.ur_robot",
-    "experiments.session.session",
-    "experiments.session.record",
-    "experiments.session.adaptive",
-    "experiments.session.teach",
-    "experiments.session.cell_config",
-    "experiments.cli",
-    "experiments.commands",
+    "hec.hardware.cell",
+    "hec.hardware.realsense",
+    "hec.hardware.ur_robot",
+    "hec.session.session",
+    "hec.commands.record",
+    "hec.session.adaptive",
+    "hec.commands.teach",
+    "hec.session.cell_config",
+    "hec.cli",
+    "hec.commands.table",
 )
 HOST = "127.0.0.7"  # apart from the other loopback tests' addresses
 
 
 def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(REPO).with_suffix("").parts)
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    folder, *parts = path.relative_to(REPO).with_suffix("").parts
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join([FOLDERS[folder], *parts])
 
 
 def project_modules() -> dict[str, Path]:
-    """Every module of the project's packages: dotted name -> file."""
+    """Every module of the project's packages: dotted name under hec -> file."""
     return {
         _module_name(path): path
-        for package in PACKAGES
-        for path in sorted((REPO / package).rglob("*.py"))
+        for folder in FOLDERS
+        for path in sorted((REPO / folder).rglob("*.py"))
         if "__pycache__" not in path.parts
     }
+
+
+def unit(module: str) -> str:
+    """The layer a module belongs to: the longest LAYERS key that is the module or a package of it."""
+    return max((u for u in LAYERS if module == u or module.startswith(u + ".")), key=len)
 
 
 def imported_modules(path: Path, known: set[str]) -> set[str]:
@@ -117,20 +146,43 @@ def test_no_import_cycle_between_project_modules() -> None:
     assert find_cycle(graph) is None, " -> ".join(find_cycle(graph))
 
 
-def test_packages_import_only_downward() -> None:
+def test_layers_import_only_downward() -> None:
     wrong = []
     for module, targets in import_graph().items():
-        package = module.split(".")[0]
         for target in targets:
-            other = target.split(".")[0]
-            if other != package and other not in ALLOWED[package]:
+            if unit(target) != unit(module) and unit(target) not in LAYERS[unit(module)]:
                 wrong.append(f"{module} imports {target}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_no_import_cycle_between_subpackages() -> None:
+    graph: dict[str, set[str]] = {}
+    for module, targets in import_graph().items():
+        graph.setdefault(unit(module), set()).update(unit(t) for t in targets if unit(t) != unit(module))
+    assert len(graph) >= len(LAYERS) - 1
+    assert find_cycle(graph) is None, " -> ".join(find_cycle(graph))
+
+
+def test_every_import_goes_through_the_hec_namespace() -> None:
+    """No module, test or benchmark imports a folder by its own name (import sim): installed, only hec
+    exists, and a module loaded under two names would be two modules."""
+    old = {*FOLDERS, "hec_models"}
+    wrong = []
+    for path in sorted([*(REPO / "tests").rglob("*.py"), *project_modules().values()]):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            else:
+                continue
+            wrong += [f"{path.relative_to(REPO)}: {n}" for n in names if n.split(".")[0] in old]
     assert not wrong, "\n".join(wrong)
 
 
 def test_estimator_and_hardware_never_import_mujoco() -> None:
     for name, path in project_modules().items():
-        if name.split(".")[0] in ("estimator", "hardware"):
+        if unit(name).startswith(("hec.estimator", "hec.hardware")):
             tree = ast.parse(path.read_text())
             names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
             names += [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
@@ -155,7 +207,7 @@ os.environ.pop("MUJOCO_GL", None)
 os.environ.pop("PYOPENGL_PLATFORM", None)
 """
 _REPORT = """
-loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("mujoco", "sim"))
+loaded = sorted(m for m in sys.modules if m.split(".")[0] == "mujoco" or m.startswith("hec.sim"))
 print("LOADED", loaded)
 """
 
@@ -169,7 +221,7 @@ def _run_python(code: str, timeout: float = 120.0) -> subprocess.CompletedProces
 
 def test_the_no_gl_stand_in_really_hides_opengl() -> None:
     """The check below means something only if importing sim fails under the same stand-in."""
-    proc = _run_python(_NO_GL + "import sim\n")
+    proc = _run_python(_NO_GL + "import hec.sim\n")
     assert proc.returncode != 0 and "NoGLBackendError" in proc.stderr
 
 
@@ -183,8 +235,8 @@ def test_real_cell_modules_import_neither_mujoco_nor_sim() -> None:
 @pytest.fixture
 def loopback_ur(tmp_path: Path) -> Iterator[Path]:
     """A loopback UR controller over a simulated cell (in this process), and a cell file for it."""
-    from sim.cell import SimCell
-    from sim.scenario import load_scenario
+    from hec.sim.cell import SimCell
+    from hec.sim.scenario import load_scenario
     from tests.rtde_loopback import LoopbackController
 
     hang_guard(120.0)
@@ -204,7 +256,7 @@ def test_record_dry_run_on_a_robot_pc_without_opengl(loopback_ur: Path) -> None:
     waypoints.write_text("q1_rad,q2_rad,q3_rad,q4_rad,q5_rad,q6_rad,label\n" + f"{q},home\n")
     out = loopback_ur / "session"
     argv = ["record", "--robot", HOST, "--waypoints", str(waypoints), "--out", str(out), "--dry-run"]
-    code = _NO_GL + f"from experiments.cli import main\nrc = main({argv!r})\n" + _REPORT + "sys.exit(rc)\n"
+    code = _NO_GL + f"from hec.cli import main\nrc = main({argv!r})\n" + _REPORT + "sys.exit(rc)\n"
     proc = _run_python(code)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "dry run: nothing moved" in proc.stdout

@@ -12,24 +12,30 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.kinematics import IK_RESTARTS, UR5, URKinematics, forward, solve_ik
-from estimator.geometry.lie import pose_minus, pose_plus
-from estimator.geometry.transforms import pose_error
-from estimator.geometry.waypoints import rotation_rich_waypoints
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.io.models import models_dir
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve.batch import BatchObjective
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.filters import initial_covariance
-from estimator.solve.initialise import initial_state
-from estimator.solve.methods import run_method
-from estimator.solve.problem import ReportedArm, RobotPoseNoise, build_problem, dataset_arm
-from estimator.solve.self_calibration import KINEMATIC_NUISANCE, SelfCalibrationObjective, adjusted_problem
-from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
-from sim.scenario import load_scenario
-from sim.simulate import simulate
+from hec.commands.calibrate import CalibrateSettings, calibrate_dataset
+from hec.estimator.common.models import models_dir
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.kinematics import IK_RESTARTS, UR5, URKinematics, forward, solve_ik
+from hec.estimator.geometry.lie import pose_minus, pose_plus
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve.batch import BatchObjective
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.filters import initial_covariance
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.methods import run_method
+from hec.estimator.solve.problem import ReportedArm, build_problem, dataset_arm
+from hec.estimator.solve.self_calibration import (
+    KINEMATIC_NUISANCE,
+    SelfCalibrationObjective,
+    adjusted_problem,
+)
+from hec.sim.scenario import load_scenario
+from hec.sim.simulate import simulate
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
 
 ROBOT = RobotPoseNoise()
 

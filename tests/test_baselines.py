@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import pose_error
-from estimator.solve.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS, opencv_calibrate
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.problem import CalibrationInputError, CalibrationProblem, build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.solve.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS, opencv_calibrate
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem, build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 # Largest errors of T_flange_cam (mm, degrees) allowed with the default noise. Measured over 20 seeds
 # on the default views (two distances), mean (largest): 1.0 (1.8-2.0) mm for tsai, park, horaud and

@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from estimator.solve.methods import METHODS
-from experiments.bench.estimators import CASES, main
+from hec.bench.estimators import CASES, main
+from hec.estimator.solve.methods import METHODS
 
 
 def test_benchmark_reports_every_method_case_and_check(tmp_path: Path) -> None:

@@ -3,8 +3,8 @@ method and the default method's acceptance lines."""
 
 from __future__ import annotations
 
-from estimator.solve.methods import DEFAULT_METHOD, METHODS
-from experiments.bench.robustness import CASES, format_case, run_cases
+from hec.bench.robustness import CASES, format_case, run_cases
+from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
 
 
 def test_two_cases_give_every_row_and_the_acceptance_lines() -> None:

@@ -8,7 +8,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from experiments.bench.speed import busy_rate, peak_rss_mib, timed_task
+from hec.bench.speed import busy_rate, peak_rss_mib, timed_task
 
 
 def _spans(pid: int, durations: list[float], start: float = 0.0) -> list[tuple[int, float, float, float]]:

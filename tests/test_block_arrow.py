@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimator.solve.batch import BatchObjective
-from estimator.solve.block_arrow import global_inverse, hat_diagonal, normal_solve
-from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.filters import initial_covariance
-from estimator.solve.initialise import initial_state
-from estimator.solve.problem import build_problem
-from estimator.solve.self_calibration import SelfCalibrationObjective
-from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+from hec.estimator.solve.batch import BatchObjective
+from hec.estimator.solve.block_arrow import global_inverse, hat_diagonal, normal_solve
+from hec.estimator.solve.calibration import MethodOptions, Prior
+from hec.estimator.solve.filters import initial_covariance
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.self_calibration import SelfCalibrationObjective
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
 
 def _objective(self_calibrated: bool) -> BatchObjective | SelfCalibrationObjective:

@@ -17,16 +17,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import pose_error
-from estimator.io.dataset import load_dataset
-from estimator.observe.observations import CACHE_FILE, load_observations, save_observations
-from estimator.solve.calibration import Calibration
-from estimator.solve.cross_validation import CrossValidation, FoldPrediction, SkippedFold
-from estimator.solve.methods import METHODS
-from estimator.solve.problem import CalibrationInputError
-from experiments.calibrate.loo import LOO_KEY, format_loo
-from experiments.calibrate.report import write_json
-from experiments.cli import main
+from hec.calibration.loo import LOO_KEY, format_loo
+from hec.calibration.report import write_json
+from hec.cli import main
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.observations import CACHE_FILE, load_observations, save_observations
+from hec.estimator.solve.calibration import Calibration
+from hec.estimator.solve.cross_validation import CrossValidation, FoldPrediction, SkippedFold
+from hec.estimator.solve.methods import METHODS
+from hec.estimator.solve.problem import CalibrationInputError
 from tests.hec_cli import run_hec
 
 JSON_KEYS = {

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.session.cell_config import CellConfig, CellConfigError, load_cell_config
+from hec.session.cell_config import CellConfig, CellConfigError, load_cell_config
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "models" / "cells" / "ur5_d435.toml"
 

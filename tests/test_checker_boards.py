@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimator.targets.charuco import CharucoBoard
-from estimator.targets.chessboard import ChessboardBoard
-from estimator.targets.kinds import board_from_dict, detector_for, find_board
-from estimator.targets.target import BoardDefinitionError
+from hec.estimator.targets.charuco import CharucoBoard
+from hec.estimator.targets.chessboard import ChessboardBoard
+from hec.estimator.targets.kinds import board_from_dict, detector_for, find_board
+from hec.estimator.targets.target import BoardDefinitionError
 from tests.sheet_views import (
     PX_PER_M,
     apply,

@@ -20,15 +20,15 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.io.dataset import load_dataset
-from estimator.io.lock import LOCK_FILE
-from estimator.observe.observations import CACHE_FILE, load_observations
-from estimator.observe.synthetic import SyntheticNoise
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import run_method
-from estimator.solve.problem import build_problem
-from experiments.cli import main
-from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+from hec.cli import main
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.io.lock import LOCK_FILE
+from hec.estimator.observe.observations import CACHE_FILE, load_observations
+from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import run_method
+from hec.estimator.solve.problem import build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 from tests.hec_cli import run_hec, scenario_file
 
 REPO = Path(__file__).resolve().parent.parent
@@ -59,7 +59,7 @@ def _tmpfs(where: Path, size: str, read_only: bool = False) -> Iterator[Path]:
 def _hec_process(*argv: str) -> subprocess.Popen:
     env = os.environ | {"PYTHONPATH": str(REPO)}
     return subprocess.Popen(
-        [sys.executable, "-m", "experiments.cli", *argv],
+        [sys.executable, "-m", "hec.cli", *argv],
         cwd=REPO,
         env=env,
         stdout=subprocess.PIPE,

@@ -8,10 +8,10 @@ from functools import cache
 import numpy as np
 import pytest
 
-from estimator.io.pose_file import PoseConvention, values_from_poses
-from estimator.solve.convention_check import check_pose_convention
-from estimator.solve.problem import CalibrationProblem, build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+from hec.estimator.io.convention_check import check_pose_convention
+from hec.estimator.io.pose_file import PoseConvention, values_from_poses
+from hec.estimator.solve.problem import CalibrationProblem, build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
 
 @cache

@@ -1,4 +1,5 @@
-"""The corner noise floor learned from how well a dataset's markers agree (estimator.observe.corner_noise)."""
+"""The corner noise floor learned from how well a dataset's markers agree
+(hec.estimator.observe.corner_noise)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.camera import CameraIntrinsics, project
-from estimator.geometry.lie import so3_exp
-from estimator.geometry.transforms import make_transform
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.io.models import models_dir
-from estimator.observe.corner_noise import fit_board_views, learn_corner_floor, measured_noise
-from estimator.observe.grading import grade_observations
-from estimator.observe.observations import (
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.camera import CameraIntrinsics, project
+from hec.estimator.geometry.lie import so3_exp
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.corner_noise import fit_board_views, learn_corner_floor, measured_noise
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.grading import grade_observations
+from hec.estimator.observe.observations import (
     FrameObservations,
     MarkerObservation,
     ObservationCacheError,
@@ -24,9 +26,9 @@ from estimator.observe.observations import (
     observe_dataset,
     with_pixel_floor,
 )
-from estimator.targets.kinds import find_board
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.qr_fit import center_from_corners
+from hec.estimator.targets.kinds import find_board
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.qr_fit import center_from_corners
 from tests.conftest import TEST_SEED
 from tests.hec_cli import run_hec, scenario_file
 
@@ -38,8 +40,8 @@ DECLARED = CameraIntrinsics(640, 480, 617.0, 617.0, 319.5, 239.5)
 def realistic(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three views of the realistic cell (lens and intrinsics undeclared, blur, lighting, a bent
     and shifted print), rendered."""
-    from sim.scenario import load_scenario
-    from sim.simulate import simulate
+    from hec.sim.scenario import load_scenario
+    from hec.sim.simulate import simulate
 
     folder = tmp_path_factory.mktemp("realistic")
     toml = (models_dir() / "scenarios" / "realistic.toml").read_text()
@@ -63,7 +65,7 @@ def detected(dataset: Dataset) -> tuple[list[FrameObservations], list[FrameObser
 def test_the_learned_floor_makes_the_realistic_cells_corner_errors_honest(dataset: Dataset, detected) -> None:
     """Issue 22: with the constant floor the normalised corner errors exceed 3 (25 here); with
     the learned one they are near 1 (1.1 here, corners and centres; 1.4-1.5 on the 17 views of
-    experiments.bench.corner_noise: biases all markers of a frame share do not show in their
+    hec.bench.corner_noise: biases all markers of a frame share do not show in their
     agreement). Graded against the corners as printed, through the true lens."""
     constant, learned = (
         grade_observations(o, dataset.ground_truth, dataset.board, dataset.intrinsics).summary()

@@ -16,14 +16,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import invert, transform_points
-from estimator.geometry.waypoints import rotation_rich_waypoints
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.cross_validation import leave_one_frame_out, without_frame
-from estimator.solve.initialise import board_pose_pnp
-from estimator.solve.methods import METHODS
-from estimator.solve.problem import CalibrationInputError, build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
+from hec.estimator.geometry.transforms import invert, transform_points
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.cross_validation import leave_one_frame_out, without_frame
+from hec.estimator.solve.initialise import board_pose_pnp
+from hec.estimator.solve.methods import METHODS
+from hec.estimator.solve.problem import CalibrationInputError, build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 
 CORNER_SIGMA_PX = 0.3  # SyntheticNoise's default, per coordinate
 

@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import pose_error
-from estimator.io.dataset import DatasetError, DatasetWriter, load_dataset
-from estimator.observe.observations import observe_dataset
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import solve
-from estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.io.dataset import DatasetWriter, load_dataset
+from hec.estimator.observe.frames import DatasetError
+from hec.estimator.observe.observations import observe_dataset
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import solve
+from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
 
 
 def _rewritten(source: Path, out: Path, joints: int | None, depth: bool) -> Path:

@@ -8,15 +8,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from estimator.geometry.lie import pose_plus
-from estimator.geometry.transforms import pose_error
-from estimator.observe.synthetic import SyntheticNoise
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.depth_check import SIGNIFICANCE, depth_check, pixels_only
-from estimator.solve.methods import run_method
-from estimator.solve.noise_learning import learn_noise
-from estimator.solve.problem import build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+from hec.estimator.geometry.lie import pose_plus
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.depth_check import SIGNIFICANCE, depth_check, pixels_only
+from hec.estimator.solve.methods import run_method
+from hec.estimator.solve.noise_learning import learn_noise
+from hec.estimator.solve.problem import build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
 C_PIXELS = np.diag([4e-8, 4e-8, 4e-8, 1e-6, 1e-6, 1e-6])  # 0.2 mm, 1 mrad
 

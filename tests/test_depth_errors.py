@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.depth_errors import (
+from hec.sim.depth_errors import (
     autocorrelation_length,
     correlated_unit_noise,
     depth_holes,

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import qrcode
 
-from estimator.io.dataset import load_dataset
-from estimator.observe.grading import grade_observations
-from estimator.observe.observations import observe_dataset
-from estimator.targets.qr import DetectorSettings, QRDetector
-from estimator.targets.qr_fit import fit_marker, orient_corners
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.grading import grade_observations
+from hec.estimator.observe.observations import observe_dataset
+from hec.estimator.targets.qr import DetectorSettings, QRDetector
+from hec.estimator.targets.qr_fit import fit_marker, orient_corners
 
 
 @pytest.fixture(scope="module")
@@ -141,8 +141,8 @@ def test_unusable_images_give_a_specific_problem(dataset, make, expected: str) -
 
 
 def test_blurred_image_is_called_blurred(dataset) -> None:
-    from estimator.io.dataset import Frame
-    from estimator.observe.observations import dataset_depth_noise, observe_frame
+    from hec.estimator.observe.frames import Frame
+    from hec.estimator.observe.observations import dataset_depth_noise, observe_frame
 
     frame = dataset.frame(0)
     blurred = Frame(
@@ -160,7 +160,7 @@ def test_blurred_image_is_called_blurred(dataset) -> None:
 def test_code_fit_covariance_matches_the_scatter_of_repeated_fits() -> None:
     """A marker warped into a synthetic image; fresh noise many times. The predicted
     (noise-only) covariance must match the spread of the fitted corners."""
-    from estimator.targets.kinds import find_board
+    from hec.estimator.targets.kinds import find_board
 
     board = find_board("hec_8qr")
     marker_id = board.marker_ids[0]

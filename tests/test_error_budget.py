@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.io.models import models_dir
-from experiments.sweep import report
-from experiments.sweep.budget import TEXT_FILE, budget_text, has_budget
-from experiments.sweep.config import SweepConfigError, cell_scenario, load_config, scenario_defaults
-from experiments.sweep.parameters import ERROR_SOURCES, error_source_set, error_sources_name
-from experiments.sweep.rows import load_rows
-from experiments.sweep.runner import run_sweep
-from experiments.sweep.summary import summarise
-from sim.scenario import load_scenario
+from hec.estimator.common.models import models_dir
+from hec.sim.scenario import load_scenario
+from hec.sweep import report
+from hec.sweep.budget import TEXT_FILE, budget_text, has_budget
+from hec.sweep.config import SweepConfigError, cell_scenario, load_config, scenario_defaults
+from hec.sweep.parameters import ERROR_SOURCES, error_source_set, error_sources_name
+from hec.sweep.rows import load_rows
+from hec.sweep.runner import run_sweep
+from hec.sweep.summary import summarise
 
 REALISTIC = models_dir() / "scenarios" / "realistic.toml"
 

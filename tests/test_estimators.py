@@ -9,17 +9,18 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimator.geometry.lie import pose_minus, so3_exp
-from estimator.geometry.transforms import make_transform, pose_error
-from estimator.geometry.waypoints import look_at_board
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve.baselines import JOINT_LINEAR_METHODS
-from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.methods import METHODS, run_method
-from estimator.solve.observability import observability
-from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_minus, so3_exp
+from hec.estimator.geometry.transforms import make_transform, pose_error
+from hec.estimator.geometry.waypoints import look_at_board
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve.baselines import JOINT_LINEAR_METHODS
+from hec.estimator.solve.calibration import MethodOptions, Prior
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.methods import METHODS, run_method
+from hec.estimator.solve.observability import observability
+from hec.estimator.solve.problem import CalibrationInputError, build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 MODEL_METHODS = ("ekf", "iekf", "batch")
 OPENCV_COMPARED = ("opencv-tsai", "opencv-park", "opencv-horaud", "opencv-daniilidis", "opencv-shah")

@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 import yaml
 
-from estimator.geometry.lie import so3_exp
-from estimator.geometry.transforms import (
+from hec.cli import main
+from hec.estimator.geometry.lie import so3_exp
+from hec.estimator.geometry.transforms import (
     make_transform,
     transform_from_xyz_quat,
     transform_from_xyz_rpy,
     xyz_quat_from_transform,
 )
-from estimator.io.calibration_file import CalibrationFileError, read_calibration
-from estimator.io.export import Export, export_text, realsense_link_optical
-from experiments.cli import main
+from hec.estimator.io.calibration_file import CalibrationFileError, read_calibration
+from hec.estimator.io.export import Export, export_text, realsense_link_optical
 
 T_FLANGE_CAM = make_transform(so3_exp(np.array([0.3, -1.2, 2.0])), np.array([0.012, -0.034, 0.056]))
 COVARIANCE = np.diag([1e-8, 2e-8, 3e-8, 1e-6, 2e-6, 3e-6])

@@ -1,4 +1,4 @@
-"""The quantised Gaussian of sim.fast_normal: unit variance, Gaussian shape and tails, determinism,
+"""The quantised Gaussian of hec.sim.fast_normal: unit variance, Gaussian shape and tails, determinism,
 and the SplitMix64 levels under it."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from scipy.special import ndtr
 from scipy.stats import chisquare
 
-from sim.fast_normal import LEVELS, normal_table, quantised_normal, splitmix64, uniform_levels
+from hec.sim.fast_normal import LEVELS, normal_table, quantised_normal, splitmix64, uniform_levels
 
 
 def test_table_is_symmetric_increasing_with_unit_variance() -> None:

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from estimator.geometry.waypoints import write_waypoint_file
-from experiments.cli import main
-from sim.scenario import Scenario
-from sim.simulate import scenario_waypoints
+from hec.cli import main
+from hec.estimator.geometry.waypoints import write_waypoint_file
+from hec.sim.scenario import Scenario
+from hec.sim.simulate import scenario_waypoints
 from tests.hec_cli import run_hec, scenario_file, simulated_dataset
 
 REPO = Path(__file__).resolve().parent.parent
@@ -36,7 +36,7 @@ def small_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _hec_process(*argv: str, env: dict[str, str] | None = None) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "experiments.cli", *argv],
+        [sys.executable, "-m", "hec.cli", *argv],
         cwd=REPO,
         env=os.environ | {"PYTHONPATH": str(REPO)} | (env or {}),
         stdout=subprocess.PIPE,
@@ -155,7 +155,7 @@ def test_ctrl_c_while_a_board_is_drawn_writes_nothing(tmp_path: Path) -> None:
         "board", "--out", str(tmp_path / "b.png"), "--dpi", "2400", env={"PYTHONPROFILEIMPORTTIME": "1"}
     )
     for line in process.stderr:
-        if line.split("|")[-1].strip() == "experiments.printable":
+        if line.split("|")[-1].strip() == "hec.commands.printable":
             break
     time.sleep(0.5)
     assert process.poll() is None, process.communicate()
@@ -187,7 +187,7 @@ def test_signals_during_the_clean_up_are_ignored_and_said_once() -> None:
     """A second and a third signal while the first one's clean-up runs: it goes on to its end."""
     code = (
         "import os, signal, time\n"
-        "from experiments.interrupts import stop_signals\n"
+        "from hec.support.interrupts import stop_signals\n"
         "with stop_signals():\n"
         "    try:\n"
         "        os.kill(os.getpid(), signal.SIGINT)\n"

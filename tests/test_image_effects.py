@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.image_effects import (
+from hec.sim.image_effects import (
     exposure,
     light_gradient,
     mirror_point,

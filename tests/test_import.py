@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import make_transform
-from estimator.io.dataset import DatasetWriter, load_dataset
-from estimator.io.intrinsics_file import write_opencv_intrinsics
-from estimator.io.layouts import (
+from hec.cli import main
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.io.dataset import DatasetWriter, load_dataset
+from hec.estimator.io.intrinsics_file import write_opencv_intrinsics
+from hec.estimator.io.layouts import (
     JointFile,
     LayoutError,
     read_easy_handeye_samples,
@@ -24,13 +25,12 @@ from estimator.io.layouts import (
     write_folder,
     write_visp,
 )
-from estimator.io.pose_file import PoseConvention, PoseFileError, read_pose_file, values_from_poses
-from estimator.observe.observations import observe_dataset
-from estimator.observe.pose_pairs import PosePair, read_pose_pairs
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import solve
-from estimator.solve.problem import build_problem, dataset_robot_noise
-from experiments.cli import main
+from hec.estimator.io.pose_file import PoseConvention, PoseFileError, read_pose_file, values_from_poses
+from hec.estimator.observe.observations import observe_dataset
+from hec.estimator.observe.pose_pairs import PosePair, read_pose_pairs
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import solve
+from hec.estimator.solve.problem import build_problem, dataset_robot_noise
 
 CONVENTION = PoseConvention("euler-xyz", "deg", "mm", "flange-to-base")
 
@@ -265,7 +265,7 @@ def test_pose_pairs_import_back_as_written(tmp_path, capsys) -> None:
 @pytest.fixture(scope="module")
 def rendered_samples(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The rendered default set as easy_handeye2 samples: reported flange poses, PnP board poses."""
-    from experiments.bench.pose_pairs import rendered_pairs
+    from hec.bench.pose_pairs import rendered_pairs
 
     pairs = rendered_pairs(load_dataset(default_dataset))
     return write_easy_handeye_samples(tmp_path_factory.mktemp("samples") / "cell.samples", pairs)

@@ -8,8 +8,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import (
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import (
     ROBOTS,
     forward,
     has_ur_structure,
@@ -18,10 +19,9 @@ from estimator.geometry.kinematics import (
     solve_ik_nearest,
     ur_ik_nearest_first,
 )
-from estimator.geometry.transforms import invert, make_transform, pose_error
-from estimator.io.models import models_dir
-from estimator.targets.kinds import load_board
-from sim.scene import ARM_PREFIX, build_cell
+from hec.estimator.geometry.transforms import invert, make_transform, pose_error
+from hec.estimator.targets.kinds import load_board
+from hec.sim.scene import ARM_PREFIX, build_cell
 
 
 @pytest.mark.parametrize("robot", sorted(ROBOTS))

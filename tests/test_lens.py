@@ -1,4 +1,4 @@
-"""sim.lens: distorting pinhole RGB-D renders with OpenCV's Brown-Conrady model.
+"""hec.sim.lens: distorting pinhole RGB-D renders with OpenCV's Brown-Conrady model.
 
 Ground truth is always OpenCV itself (cv2.projectPoints), never the module's own arithmetic."""
 
@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.lens import (
+from hec.sim.lens import (
     depth_sampling,
     distort_depth,
     distort_rgb,

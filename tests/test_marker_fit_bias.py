@@ -1,4 +1,4 @@
-"""estimator.geometry.marker_fit_bias: the corners one homography over a distorted marker reports."""
+"""hec.estimator.geometry.marker_fit_bias: the corners one homography over a distorted marker reports."""
 
 from __future__ import annotations
 
@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.marker_fit_bias import (
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.marker_fit_bias import (
     QUADRATURE_AB,
     QUADRATURE_WEIGHTS,
     marker_fit_bias,
     marker_fit_bias_jacobians,
 )
-from estimator.geometry.transforms import invert, transform_points
-from estimator.targets.qr import QRDetector
-from sim.cell import SimCell
-from sim.scenario import scenario_from_dict
-from sim.simulate import scenario_waypoints
+from hec.estimator.geometry.transforms import invert, transform_points
+from hec.estimator.targets.qr import QRDetector
+from hec.sim.cell import SimCell
+from hec.sim.scenario import scenario_from_dict
+from hec.sim.simulate import scenario_waypoints
 
 # The realistic cell's lens (models/scenarios/realistic.toml).
 LENS = CameraIntrinsics(640, 480, 617.0, 617.0, 319.5, 239.5, (0.13, -0.30, 0.0, 0.0, 0.0))

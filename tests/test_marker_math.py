@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from estimator.geometry.camera import CameraIntrinsics, back_project, distort_normalized, pixel_rays
-from estimator.targets.qr_fit import (
+from hec.estimator.geometry.camera import CameraIntrinsics, back_project, distort_normalized, pixel_rays
+from hec.estimator.targets.qr_fit import (
     apply_homography,
     center_from_corners,
     homography_from_corners,

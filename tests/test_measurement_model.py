@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.lie import (
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.lie import (
     pose_minus,
     pose_plus,
     so3_exp,
@@ -16,12 +16,12 @@ from estimator.geometry.lie import (
     so3_right_jacobian,
     so3_right_jacobian_inverse,
 )
-from estimator.geometry.transforms import transform_points
-from estimator.geometry.waypoints import rotation_rich_waypoints
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import build_problem
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
+from hec.estimator.geometry.transforms import transform_points
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.problem import build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 
 STEP = 1e-6
 

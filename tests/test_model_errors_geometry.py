@@ -1,4 +1,4 @@
-"""The model errors of a scenario (sim.scenario.ModelErrors) reach the simulated cell's geometry.
+"""The model errors of a scenario (hec.sim.scenario.ModelErrors) reach the simulated cell's geometry.
 
 With errors.arm on, MuJoCo moves the arm with the true DH table while the cell reports the
 nominal model's flange pose; with errors.intrinsics, errors.lens and errors.board on, the image
@@ -14,21 +14,21 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from estimator.geometry.kinematics import IK_RESTARTS, forward
-from estimator.geometry.transforms import invert, make_transform, pose_error
-from estimator.geometry.waypoints import Waypoint, look_at_board
-from estimator.io.models import models_dir
-from estimator.targets.board import BoardDefinition, board_image
-from estimator.targets.qr import QRDetector
-from sim.cell import SimCell
-from sim.model_errors import draw_true_cell
-from sim.scenario import NoiseSettings, Scenario, load_scenario, scenario_from_dict
-from sim.scene import ARM_PREFIX, BOARD_TEXTURE_PX_PER_M, CAMERA_NAME, R_CAM_MJCAM
-from sim.simulate import scenario_waypoints
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.kinematics import IK_RESTARTS, forward
+from hec.estimator.geometry.transforms import invert, make_transform, pose_error
+from hec.estimator.geometry.waypoints import Waypoint, look_at_board
+from hec.estimator.targets.board import BoardDefinition, board_image
+from hec.estimator.targets.qr import QRDetector
+from hec.sim.cell import SimCell
+from hec.sim.model_errors import draw_true_cell
+from hec.sim.scenario import NoiseSettings, Scenario, load_scenario, scenario_from_dict
+from hec.sim.scene import ARM_PREFIX, BOARD_TEXTURE_PX_PER_M, CAMERA_NAME, R_CAM_MJCAM
+from hec.sim.simulate import scenario_waypoints
 
 REALISTIC = models_dir() / "scenarios" / "realistic.toml"
 SEED = 7
-# Views of the default trajectory rolled about the optical axis (estimator.geometry.waypoints'
+# Views of the default trajectory rolled about the optical axis (hec.estimator.geometry.waypoints'
 # ROTATION_RICH_VIEWS 9-16). With roll 0 the marker edges run along the pixel rows and
 # columns and the renderer places them with a sub-pixel-phase error of up to ~0.1 px (seen on
 # the ideal cell too); rolled edges sweep every phase and are located to ~0.01 px.

@@ -1,5 +1,5 @@
-"""The model errors of the depth and colour sensors in real MuJoCo renders of the cell (sim.real_camera,
-sim.depth_errors, sim.image_effects through SimCell.capture), and that simulating with them is
+"""The model errors of the depth and colour sensors in real MuJoCo renders of the cell (hec.sim.real_camera,
+hec.sim.depth_errors, hec.sim.image_effects through SimCell.capture), and that simulating with them is
 reproducible and, when they are off, leaves the ideal cell's datasets exactly as they were.
 
 Each test switches on one effect with every sensor noise off (unless the test is about the noise) and
@@ -18,16 +18,16 @@ import numpy as np
 import pytest
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from estimator.geometry.camera import back_project, project
-from estimator.geometry.transforms import invert
-from estimator.geometry.waypoints import write_waypoint_file
-from estimator.io.dataset import load_dataset
-from estimator.io.models import models_dir
-from sim.cell import SimCell
-from sim.depth_errors import autocorrelation_length
-from sim.noise import depth_sigma
-from sim.scenario import ModelErrors, NoiseSettings, Scenario, load_scenario, scenario_from_dict
-from sim.simulate import scenario_waypoints, simulate
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.camera import back_project, project
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.geometry.waypoints import write_waypoint_file
+from hec.estimator.io.dataset import load_dataset
+from hec.sim.cell import SimCell
+from hec.sim.depth_errors import autocorrelation_length
+from hec.sim.noise import depth_sigma
+from hec.sim.scenario import ModelErrors, NoiseSettings, Scenario, load_scenario, scenario_from_dict
+from hec.sim.simulate import scenario_waypoints, simulate
 
 NOISE_OFF = {name: {"enabled": False} for name in NoiseSettings.model_fields}
 DEPTH_ERRORS_OFF = {

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import decode_depth, encode_depth
-from sim.noise import apply_depth_models, apply_rgb_models, depth_sigma, perturb_flange_pose
-from sim.scenario import (
+from hec.estimator.common.depth_png import decode_depth, encode_depth
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.sim.noise import apply_depth_models, apply_rgb_models, depth_sigma, perturb_flange_pose
+from hec.sim.scenario import (
     DepthBias,
     DepthNoise,
     DepthQuantisation,

@@ -11,24 +11,25 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.geometry.lie import pose_minus, pose_plus, so3_exp
-from estimator.geometry.transforms import make_transform, pose_error, transform_points
-from estimator.geometry.waypoints import rotation_rich_waypoints
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve import noise_learning
-from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.methods import run_method
-from estimator.solve.noise_learning import learn_noise
-from estimator.solve.noise_levels import NoiseLevels, scaled_problem
-from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem
-from estimator.solve.self_calibration import (
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_minus, pose_plus, so3_exp
+from hec.estimator.geometry.transforms import make_transform, pose_error, transform_points
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve import noise_learning
+from hec.estimator.solve.calibration import MethodOptions, Prior
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.methods import run_method
+from hec.estimator.solve.noise_learning import learn_noise
+from hec.estimator.solve.noise_levels import NoiseLevels, scaled_problem
+from hec.estimator.solve.problem import CalibrationInputError, build_problem
+from hec.estimator.solve.self_calibration import (
     CAMERA_NUISANCE,
     NuisanceUncertainty,
     adjusted_problem,
     droppable_groups,
 )
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene
 
 DECLARED = SyntheticNoise()
 DECLARED_ONLY = MethodOptions(learn_noise=False)

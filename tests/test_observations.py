@@ -7,10 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import Frame, load_dataset
-from estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
-from estimator.observe.observations import (
+from hec.cli import main
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
+from hec.estimator.observe.frames import Frame
+from hec.estimator.observe.observations import (
     ObservationCacheError,
     dataset_depth_noise,
     load_observations,
@@ -18,8 +20,7 @@ from estimator.observe.observations import (
     observe_frame,
     save_observations,
 )
-from estimator.targets.qr import DetectorSettings, QRDetector
-from experiments.cli import main
+from hec.estimator.targets.qr import DetectorSettings, QRDetector
 
 K = CameraIntrinsics(640, 480, 617.0, 617.0, 319.5, 239.5)
 CORNERS = np.array([[280.0, 200.0], [360.0, 205.0], [356.0, 285.0], [276.0, 280.0]])

@@ -1,4 +1,4 @@
-"""The wheel ships the four packages, the models (as ``hec_models``) and the ``hec`` script.
+"""The wheel ships the four packages, the models (as ``hec.models``) and the ``hec`` script.
 
 The wheel is built with ``pip wheel --no-deps`` (build isolation: setuptools comes from
 PyPI) from a clean copy of the repository, so that stale ``build/`` output in the work
@@ -20,7 +20,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-PACKAGES = ("sim", "estimator", "experiments", "hardware")
+# Folder -> where it lands in the wheel.
+FOLDERS = {"experiments": "hec", "sim": "hec/sim", "estimator": "hec/estimator", "hardware": "hec/hardware"}
 MODEL_PATTERNS = ("*.xml", "boards/*.json", "cells/*.toml", "scenarios/*.toml", "scenarios/*.csv")
 _NOT_COPIED = shutil.ignore_patterns(
     ".git",
@@ -70,48 +71,54 @@ def _dist_info_file(wheel: Path, name: str) -> str:
 
 def test_wheel_ships_the_models(wheel: Path) -> None:
     names = _names(wheel)
-    for required in ("hec_models/ur5.xml", "hec_models/cell.xml", "hec_models/boards/hec_8qr.json"):
+    for required in ("hec/models/ur5.xml", "hec/models/cell.xml", "hec/models/boards/hec_8qr.json"):
         assert required in names
     models = REPO / "models"
     for pattern in MODEL_PATTERNS:
         for path in models.glob(pattern):
-            assert f"hec_models/{path.relative_to(models).as_posix()}" in names
+            assert f"hec/models/{path.relative_to(models).as_posix()}" in names
 
 
-def test_wheel_ships_every_package(wheel: Path) -> None:
+def test_wheel_ships_every_package_under_hec_alone(wheel: Path) -> None:
     names = _names(wheel)
-    for package in PACKAGES:
-        assert f"{package}/__init__.py" in names
-        # Every sub-package and module in the source tree is in the wheel.
-        for path in (REPO / package).rglob("*.py"):
-            if "__pycache__" not in path.parts:
-                assert path.relative_to(REPO).as_posix() in names
-    assert not any(n.startswith(("tests/", "models/")) for n in names)
+    for folder, target in FOLDERS.items():
+        assert f"{target}/__init__.py" in names
+        # Every sub-package and module in the source tree is in the wheel, the benchmarks excepted.
+        for path in (REPO / folder).rglob("*.py"):
+            relative = path.relative_to(REPO / folder)
+            if "__pycache__" not in path.parts and relative.parts[0] != "bench":
+                assert f"{target}/{relative.as_posix()}" in names
+    assert not any(n.startswith("hec/bench/") for n in names)
+    top_level = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert top_level == {"hec"}, top_level
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
 
 
 def test_wheel_metadata_and_entry_point(wheel: Path) -> None:
     meta = Parser().parsestr(_dist_info_file(wheel, "METADATA"))
     assert meta["Name"] == "hec"
     assert meta["Version"] == "0.1.0"
-    assert meta["Requires-Python"] == ">=3.11"
-    requires = " ".join(meta.get_all("Requires-Dist") or [])
-    assert "opencv-python-headless" in requires and "<5" in requires
+    assert meta["Requires-Python"] == ">=3.10"
+    assert meta["License-Expression"] == "Apache-2.0"
+    requires = meta.get_all("Requires-Dist") or []
+    core = [r for r in requires if "extra ==" not in r]
+    assert any(r.startswith("opencv-python-headless") and "<5" in r for r in core)
+    # The simulator, the devices and Dask are extras, not requirements of the core.
+    for optional, extra in (("mujoco", "sim"), ("numba", "sim"), ("pyrealsense2", "realsense")):
+        assert not any(r.startswith(optional) for r in core), optional
+        assert any(r.startswith(optional) and f'extra == "{extra}"' in r for r in requires), optional
+    assert not any(r.startswith(("ur-rtde", "ur_rtde", "dask")) for r in core)
 
     entry_points = configparser.ConfigParser()
     entry_points.read_string(_dist_info_file(wheel, "entry_points.txt"))
-    assert entry_points["console_scripts"]["hec"].strip() == "experiments.cli:main"
+    assert entry_points["console_scripts"]["hec"].strip() == "hec.cli:main"
 
 
-def test_models_found_with_importlib_resources(wheel: Path, tmp_path: Path) -> None:
+def test_models_found_in_the_installed_wheel(wheel: Path, tmp_path: Path) -> None:
     site = tmp_path / "site"
     with zipfile.ZipFile(wheel) as zf:
         zf.extractall(site)
-    code = (
-        "from importlib.resources import files\n"
-        "p = files('hec_models') / 'ur5.xml'\n"
-        "assert p.is_file(), p\n"
-        "print(p)\n"
-    )
+    code = "from hec.estimator.common.models import models_dir\nprint(models_dir() / 'ur5.xml')\n"
     # -S: no site-packages, so the editable install of the work tree cannot answer instead.
     proc = subprocess.run(
         [sys.executable, "-S", "-c", code],
@@ -122,7 +129,8 @@ def test_models_found_with_importlib_resources(wheel: Path, tmp_path: Path) -> N
         timeout=60,
     )
     assert proc.returncode == 0, proc.stderr
-    assert Path(proc.stdout.strip()).resolve() == (site / "hec_models" / "ur5.xml").resolve()
+    assert Path(proc.stdout.strip()) == (site / "hec" / "models" / "ur5.xml").resolve()
+    assert Path(proc.stdout.strip()).is_file()
 
 
 def test_installed_wheel_runs_the_demo(wheel: Path, tmp_path: Path) -> None:
@@ -133,9 +141,9 @@ def test_installed_wheel_runs_the_demo(wheel: Path, tmp_path: Path) -> None:
         zf.extractall(site)
     out = tmp_path / "demo"
     code = (
-        "import experiments, estimator.solve, hec_models\n"
-        "print('FROM', experiments.__file__)\n"
-        "from experiments.cli import main\n"
+        "import hec, hec.estimator.solve\n"
+        "print('FROM', hec.__file__)\n"
+        "from hec.cli import main\n"
         f"raise SystemExit(main(['demo', '--out', {str(out)!r}]))\n"
     )
     # -S: site-packages without its .pth files, so the editable install's import hook is not set
@@ -150,7 +158,7 @@ def test_installed_wheel_runs_the_demo(wheel: Path, tmp_path: Path) -> None:
         timeout=600,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert f"FROM {site / 'experiments' / '__init__.py'}" in proc.stdout
+    assert f"FROM {site / 'hec' / '__init__.py'}" in proc.stdout
     assert "ekf" in proc.stdout and "truth: translation error" in proc.stdout
     assert "realistic.toml" in proc.stdout  # the demo says it is the ideal cell
     assert (out / "dataset.json").is_file() and (out / "detections.json").is_file()

@@ -9,13 +9,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import pose_error
-from estimator.observe.observations import FrameObservations, MarkerObservation
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import solve
-from estimator.solve.problem import build_problem
-from estimator.targets.board import BoardDefinition
-from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.observe.observations import FrameObservations, MarkerObservation
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import solve
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.targets.board import BoardDefinition
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.lie import so3_exp
-from estimator.geometry.transforms import make_transform
-from estimator.io.pose_file import (
+from hec.estimator.geometry.lie import so3_exp
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.io.pose_file import (
     ROTATIONS,
     PoseConvention,
     PoseFileError,

@@ -9,14 +9,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.lie import pose_nees, pose_plus
-from estimator.geometry.transforms import invert, make_transform, pose_error
-from estimator.io.layouts import write_easy_handeye_samples
-from estimator.observe.pose_pairs import PosePair
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, solve_pose_pairs
-from estimator.solve.problem import CalibrationInputError, RobotPoseNoise
-from experiments.cli import main
+from hec.cli import main
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_nees, pose_plus
+from hec.estimator.geometry.transforms import invert, make_transform, pose_error
+from hec.estimator.io.layouts import write_easy_handeye_samples
+from hec.estimator.observe.pose_pairs import PosePair
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, solve_pose_pairs
+from hec.estimator.solve.problem import CalibrationInputError
 
 X_TRUE = make_transform(Rotation.from_rotvec([0.02, -0.01, 0.3]).as_matrix(), np.array([0.01, 0.006, 0.04]))
 B_TRUE = make_transform(Rotation.from_rotvec([-1.5, 0.0, 0.1]).as_matrix(), np.array([0.15, -0.7, 0.45]))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import make_transform
-from estimator.observe.pose_pairs import PosePair, PosePairError, read_pose_pairs, write_pose_pairs
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.observe.pose_pairs import PosePair, PosePairError, read_pose_pairs, write_pose_pairs
 
 
 def _pose(rng: np.random.Generator) -> np.ndarray:

@@ -13,15 +13,16 @@ import pytest
 import qrcode
 from qrcode.util import MODE_8BIT_BYTE, QRData
 
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.observe.grading import grade_observations
-from estimator.observe.observations import dataset_depth_noise, observe_dataset, observe_frame
-from estimator.targets.board import BoardDefinition
-from estimator.targets.kinds import find_board, load_board
-from estimator.targets.qr import DetectorSettings, QRDetector
-from estimator.targets.qr_symbol import SymbolSpec, read_format
-from estimator.targets.target import BoardDefinitionError
-from experiments.cli import main
+from hec.cli import main
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.grading import grade_observations
+from hec.estimator.observe.observations import dataset_depth_noise, observe_dataset, observe_frame
+from hec.estimator.targets.board import BoardDefinition
+from hec.estimator.targets.kinds import find_board, load_board
+from hec.estimator.targets.qr import DetectorSettings, QRDetector
+from hec.estimator.targets.qr_symbol import SymbolSpec, read_format
+from hec.estimator.targets.target import BoardDefinitionError
 from tests.conftest import TEST_SEED
 
 
@@ -41,8 +42,8 @@ def _foreign_board_dict() -> dict:
 @pytest.fixture(scope="module")
 def foreign(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
     """The default scenario with the foreign board printed (its dataset's board.json states the masks)."""
-    from sim.scenario import scenario_from_dict
-    from sim.simulate import simulate
+    from hec.sim.scenario import scenario_from_dict
+    from hec.sim.simulate import simulate
 
     root = tmp_path_factory.mktemp("foreign")
     (root / "printed.json").write_text(json.dumps(_foreign_board_dict()))

@@ -9,17 +9,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import invert, pose_error
-from estimator.io.dataset import DatasetWriter, Frame, load_dataset
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import run_method
-from estimator.solve.problem import build_problem, dataset_robot_noise
-from estimator.targets.qr import DetectorSettings
-from experiments.detection import detect_and_cache
-from hardware.realsense import CameraError, RealSenseCamera, RealSenseSettings
-from sim.cell import SimCell
-from sim.scenario import DepthNoise, load_scenario
-from sim.simulate import scenario_waypoints, simulate
+from hec.estimator.geometry.transforms import invert, pose_error
+from hec.estimator.io.dataset import DatasetWriter, load_dataset
+from hec.estimator.observe.frames import Frame
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import run_method
+from hec.estimator.solve.problem import build_problem, dataset_robot_noise
+from hec.estimator.targets.qr import DetectorSettings
+from hec.hardware.camera_settings import CameraError, RealSenseSettings
+from hec.hardware.realsense import RealSenseCamera
+from hec.sim.cell import SimCell
+from hec.sim.scenario import DepthNoise, load_scenario
+from hec.sim.simulate import scenario_waypoints, simulate
+from hec.support.detection import detect_and_cache
 from tests.conftest import TEST_SEED
 from tests.realsense_software import (
     COLOUR_INTRINSICS,

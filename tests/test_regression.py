@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments.regress.baseline_file import (
+from hec.commands.regress import compare, explain, main, measure, trial_scenario
+from hec.regress.baseline_file import (
     DEFAULT_BASELINE,
     Baseline,
     BaselineError,
@@ -24,7 +25,6 @@ from experiments.regress.baseline_file import (
     Threshold,
     load_baseline,
 )
-from experiments.regress.command import compare, explain, main, measure, trial_scenario
 
 
 @pytest.fixture(scope="module")

@@ -15,14 +15,14 @@ import pytest
 import zxingcpp
 from scipy.ndimage import map_coordinates
 
-from estimator.geometry.camera import project_points
-from estimator.geometry.transforms import invert
-from estimator.targets.board import BoardDefinition, board_image
-from sim.cell import SimCell
-from sim.noise import depth_sigma
-from sim.scenario import CameraSettings, Scenario
-from sim.scene import BOARD_TEXTURE_PX_PER_M, INK_REFLECTANCE, PAPER_REFLECTANCE, _sheet_texture
-from sim.simulate import scenario_waypoints
+from hec.estimator.geometry.camera import project_points
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.targets.board import BoardDefinition, board_image
+from hec.sim.cell import SimCell
+from hec.sim.noise import depth_sigma
+from hec.sim.scenario import CameraSettings, Scenario
+from hec.sim.scene import BOARD_TEXTURE_PX_PER_M, INK_REFLECTANCE, PAPER_REFLECTANCE, _sheet_texture
+from hec.sim.simulate import scenario_waypoints
 
 # A camera with unequal focal lengths and an off-centre principal point.
 OFF_CENTRE = CameraSettings(width=640, height=480, fx=600.0, fy=612.0, cx=331.3, cy=228.6)

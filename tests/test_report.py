@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.lie import pose_minus
-from estimator.geometry.transforms import pose_error
-from estimator.observe.synthetic import SyntheticNoise
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.methods import run_method
-from estimator.solve.observability import observability
-from estimator.solve.problem import CalibrationInputError, build_problem
-from experiments.sweep import report, summary
-from experiments.sweep import rows as row_schema
-from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from hec.estimator.geometry.lie import pose_minus
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.methods import run_method
+from hec.estimator.solve.observability import observability
+from hec.estimator.solve.problem import CalibrationInputError, build_problem
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from hec.sweep import report, summary
+from hec.sweep import rows as row_schema
 
 # opencv-andreff finds no solution on an orbit (the default views' angles at one distance to the
 # board): real failed rows.

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.kinematics import forward
+from hec.estimator.geometry.kinematics import forward
 from tests.rtde_loopback import (
     RUNTIME_PAUSED,
     RUNTIME_PLAYING,
@@ -44,7 +44,7 @@ from tests.rtde_loopback import (
 )
 
 if TYPE_CHECKING:
-    from sim.cell import SimCell
+    from hec.sim.cell import SimCell
 
 rtde_control = pytest.importorskip("rtde_control")
 rtde_receive = pytest.importorskip("rtde_receive")
@@ -118,8 +118,8 @@ def pose_errors(pose: list[float], T_expected: np.ndarray) -> tuple[float, float
 
 
 def open_rig(host: str) -> Rig:
-    from sim.cell import SimCell
-    from sim.scenario import load_scenario
+    from hec.sim.cell import SimCell
+    from hec.sim.scenario import load_scenario
 
     cell = SimCell(load_scenario(None), np.random.default_rng(0))
     cell.set_joints(Q_HOME)

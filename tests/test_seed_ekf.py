@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.geometry.lie import pose_minus, pose_plus
-from estimator.geometry.transforms import pose_error
-from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.problem import build_problem
-from estimator.solve.seed_ekf import (
+from hec.estimator.geometry.lie import pose_minus, pose_plus
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.solve.calibration import MethodOptions, Prior
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.seed_ekf import (
     SeedEkfState,
     add_landmarks,
     filter_steps,
@@ -22,7 +22,7 @@ from estimator.solve.seed_ekf import (
     predict,
     seed_ekf,
 )
-from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
 STEP = 1e-6
 

@@ -14,18 +14,18 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.geometry.transforms import pose_error, xyz_quat_from_transform
-from estimator.geometry.waypoints import write_waypoint_file
-from estimator.io.dataset import load_dataset
-from estimator.io.models import models_dir
-from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
-from experiments.cli import main
-from experiments.commands import build_parser
-from experiments.session import record
-from experiments.session.plot import PLOT_FILE
-from sim.cell import SimCell
-from sim.scenario import Scenario, load_scenario
-from sim.simulate import scenario_waypoints, simulate
+from hec.cli import main
+from hec.commands import record
+from hec.commands.calibrate import CalibrateSettings, calibrate_dataset
+from hec.commands.table import build_parser
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.transforms import pose_error, xyz_quat_from_transform
+from hec.estimator.geometry.waypoints import write_waypoint_file
+from hec.estimator.io.dataset import load_dataset
+from hec.session.plot import PLOT_FILE
+from hec.sim.cell import SimCell
+from hec.sim.scenario import Scenario, load_scenario
+from hec.sim.simulate import scenario_waypoints, simulate
 from tests.conftest import TEST_SEED
 from tests.realsense_software import SERIAL, SoftwareD435, d435_depth_sensor, d435_scenario
 from tests.rtde_loopback import LoopbackController
@@ -294,7 +294,7 @@ def test_an_adaptive_session_on_the_real_cell_path_picks_from_the_taught_pool(
     real_cell: RealCell, tmp_path: Path, capsys
 ) -> None:
     """Without nominal values the first views are spread over the pool; then the running estimate
-    chooses, and the session stops at the target (experiments.session.adaptive)."""
+    chooses, and the session stops at the target (hec.session.adaptive)."""
     waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario())
     out = tmp_path / "adaptive"
     target = ("--target-sigma-mm", "0.2", "--target-sigma-deg", "0.02")

@@ -13,21 +13,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.waypoints import write_waypoint_file
-from estimator.io.dataset import Capture, load_dataset
-from estimator.io.lock import LOCK_FILE, FolderLockedError
-from estimator.io.recorder import DatasetRecorder
-from estimator.observe.observations import (
+from hec.estimator.geometry.waypoints import write_waypoint_file
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.io.lock import LOCK_FILE, FolderLockedError
+from hec.estimator.io.recorder import DatasetRecorder
+from hec.estimator.observe.frames import Capture
+from hec.estimator.observe.observations import (
     FrameObservations,
     ObservationCacheError,
     dataset_depth_noise,
     load_observations,
     save_observations,
 )
-from estimator.targets.qr import DetectorSettings
-from experiments.session.session import LiveEstimate
-from sim.scenario import Scenario
-from sim.simulate import scenario_waypoints
+from hec.estimator.targets.qr import DetectorSettings
+from hec.session.session import LiveEstimate
+from hec.sim.scenario import Scenario
+from hec.sim.simulate import scenario_waypoints
 from tests.hec_cli import run_hec
 
 REPO = Path(__file__).resolve().parent.parent
@@ -72,7 +73,7 @@ def test_a_killed_recording_is_locked_while_it_runs_and_resumes_to_the_uninterru
     cut = tmp_path / "cut"
     env = os.environ | {"PYTHONPATH": str(REPO)}
     process = subprocess.Popen(
-        [sys.executable, "-m", "experiments.cli", *_record(scenario, cut, "--no-live")],
+        [sys.executable, "-m", "hec.cli", *_record(scenario, cut, "--no-live")],
         cwd=REPO,
         env=env,
         stdout=subprocess.PIPE,

@@ -17,14 +17,20 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from estimator.geometry.transforms import pose_error, transform_from_xyz_quat
-from estimator.geometry.waypoints import Waypoint, WaypointFileError, read_waypoint_file, write_waypoint_file
-from estimator.io.dataset import DatasetError, load_dataset
-from estimator.io.models import models_dir
-from experiments.cli import main
-from sim.cell import SimCell
-from sim.scenario import Scenario, load_scenario
-from sim.simulate import scenario_waypoints, simulate
+from hec.cli import main
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.transforms import pose_error, transform_from_xyz_quat
+from hec.estimator.geometry.waypoints import (
+    Waypoint,
+    WaypointFileError,
+    read_waypoint_file,
+    write_waypoint_file,
+)
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.frames import DatasetError
+from hec.sim.cell import SimCell
+from hec.sim.scenario import Scenario, load_scenario
+from hec.sim.simulate import scenario_waypoints, simulate
 from tests.hec_cli import run_hec
 
 REPO = Path(__file__).resolve().parent.parent

@@ -7,14 +7,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.lie import pose_plus_jacobian, pose_plus_jacobian_rows, so3_exp, so3_exp_rows
-from estimator.geometry.transforms import transform_points
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.noise_levels import NoiseLevels, scaled_problem
-from estimator.solve.problem import RobotPoseNoise, build_problem
-from estimator.solve.stacked_prediction import predict_frames, stacked_frames
-from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.lie import pose_plus_jacobian, pose_plus_jacobian_rows, so3_exp, so3_exp_rows
+from hec.estimator.geometry.transforms import transform_points
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.noise_levels import NoiseLevels, scaled_problem
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.stacked_prediction import predict_frames, stacked_frames
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 DISTORTED = CameraIntrinsics(640, 480, 600.0, 612.0, 331.3, 228.6, (0.08, -0.2, 1e-3, -2e-3, 0.1))
 # The corner bias's derivatives under distortion are forward differences (step 1e-7): a rounding

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from experiments.sweep.command import add_parser, run
-from experiments.sweep.config import SweepConfigError, cell_scenario, load_config
-from experiments.sweep.rows import ROWS_FILE, SweepError, load_rows, row_columns
-from experiments.sweep.runner import rerun_trial, run_sweep, same_rows
+from hec.commands.sweep import add_parser, run
+from hec.sweep.config import SweepConfigError, cell_scenario, load_config
+from hec.sweep.rows import ROWS_FILE, SweepError, load_rows, row_columns
+from hec.sweep.runner import rerun_trial, run_sweep, same_rows
 
 SMALL = """
 fidelity = "measurements"
@@ -68,7 +68,7 @@ def test_dask_cluster_gives_the_local_rows_bit_for_bit_with_few_trials_in_flight
 ) -> None:
     from distributed import LocalCluster
 
-    from experiments.sweep import runner
+    from hec.sweep import runner
 
     config, _, local = small
     monkeypatch.setattr(runner, "DASK_TRIALS_IN_FLIGHT", 1)

@@ -8,14 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import transform_from_xyz_quat
-from estimator.io.dataset import DatasetWriter, Frame, GroundTruth, load_dataset
-from estimator.io.memory import dataset_in_memory
-from estimator.targets.kinds import find_board
-from experiments.sweep.config import load_config
-from experiments.sweep.runner import same_rows
-from experiments.sweep.trials import run_trial, tasks_for
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import transform_from_xyz_quat
+from hec.estimator.io.dataset import DatasetWriter, load_dataset
+from hec.estimator.io.memory import dataset_in_memory
+from hec.estimator.observe.frames import Frame, GroundTruth
+from hec.estimator.targets.kinds import find_board
+from hec.sweep.config import load_config
+from hec.sweep.runner import same_rows
+from hec.sweep.trials import run_trial, tasks_for
 
 DEPTH_SCALE_M = 0.0001
 

@@ -42,7 +42,7 @@ def _start_render_sweep(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     config = tmp_path / "render.toml"
     config.write_text(RENDER)
     env = os.environ | {"TMPDIR": str(scratch), "PYTHONPATH": str(REPO)}
-    argv = [sys.executable, "-m", "experiments.cli", "sweep", str(config), "--out", str(tmp_path / "out")]
+    argv = [sys.executable, "-m", "hec.cli", "sweep", str(config), "--out", str(tmp_path / "out")]
     process = subprocess.Popen(
         [*argv, "--workers", "1", "--quiet"],
         cwd=REPO,

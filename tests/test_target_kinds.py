@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from estimator.io.models import models_dir
-from estimator.targets.kinds import detector_for, find_board, load_board
-from experiments.bench.targets import board_trial
-from experiments.cli import main
-from experiments.printable import printable_board
+from hec.bench.targets import board_trial
+from hec.cli import main
+from hec.commands.printable import printable_board
+from hec.estimator.common.models import models_dir
+from hec.estimator.targets.kinds import detector_for, find_board, load_board
 
 BOARDS = sorted(p.stem for p in (models_dir() / "boards").glob("*.json"))
 
@@ -71,7 +71,7 @@ def test_rendered_default_trajectory_meets_the_acceptance(name: str) -> None:
 
 
 def test_the_target_sweep_compares_every_board_file() -> None:
-    from experiments.sweep.config import load_config
+    from hec.sweep.config import load_config
 
     config = load_config(models_dir() / "sweeps" / "targets.toml")
     assert sorted(config.grid["board"]) == BOARDS

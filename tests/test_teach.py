@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.waypoints import read_waypoint_file
-from experiments.commands import build_parser
-from experiments.session import teach
-from sim.cell import SimCell
-from sim.scenario import load_scenario
-from sim.simulate import scenario_waypoints
+from hec.commands import teach
+from hec.commands.table import build_parser
+from hec.estimator.geometry.waypoints import read_waypoint_file
+from hec.sim.cell import SimCell
+from hec.sim.scenario import load_scenario
+from hec.sim.simulate import scenario_waypoints
 from tests.realsense_software import SoftwareD435, d435_depth_sensor, d435_scenario
 from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard

@@ -8,18 +8,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimator.geometry.lie import pose_minus
-from estimator.geometry.transforms import transform_points
-from estimator.observe.synthetic import SyntheticNoise
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.filters import IEKF_MAX_ITERATIONS, initial_covariance
-from estimator.solve.filters import update as ekf_update
-from estimator.solve.initialise import initial_state
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.observability import observability
-from estimator.solve.problem import RobotPoseNoise, build_problem
-from estimator.solve.ukf import ukf, update_frame
-from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_minus
+from hec.estimator.geometry.transforms import transform_points
+from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.filters import IEKF_MAX_ITERATIONS, initial_covariance
+from hec.estimator.solve.filters import update as ekf_update
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.observability import observability
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.ukf import ukf, update_frame
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
 # Measured over 3 x 30 random mounts (default noise, board model): RMS error / CRB 0.85-0.90 for
 # translation and 0.87-1.05 for rotation (ekf: the same), mean NEES 4.9-5.5 (6 dof).

@@ -1,4 +1,4 @@
-"""hardware.ur_robot.URRobot on the real ur_rtde clients, against the loopback controller."""
+"""hec.hardware.ur_robot.URRobot on the real ur_rtde clients, against the loopback controller."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from estimator.geometry.kinematics import forward
-from estimator.geometry.transforms import make_transform, pose_error
-from hardware.ur_robot import MotionSettings, RobotError, SafetyLimits, URRobot
-from sim.cell import SimCell
-from sim.scenario import load_scenario
+from hec.estimator.geometry.kinematics import forward
+from hec.estimator.geometry.transforms import make_transform, pose_error
+from hec.hardware.ur_robot import MotionSettings, RobotError, SafetyLimits, URRobot
+from hec.sim.cell import SimCell
+from hec.sim.scenario import load_scenario
 from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 

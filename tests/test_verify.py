@@ -12,24 +12,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.lie import pose_minus, pose_plus
-from estimator.geometry.waypoints import rotation_rich_waypoints
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import DEFAULT_METHOD, run_method
-from estimator.solve.noise_learning import learn_noise
-from estimator.solve.pick_error import pick_error, true_pick_error_mm
-from estimator.solve.problem import build_problem
-from estimator.solve.verify import (
+from hec.bench.verify import learned_levels
+from hec.commands.verify import EXIT_UNTESTED
+from hec.estimator.geometry.lie import pose_minus, pose_plus
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import DEFAULT_METHOD, run_method
+from hec.estimator.solve.noise_learning import learn_noise
+from hec.estimator.solve.pick_error import pick_error, true_pick_error_mm
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.verify import (
     SIGNIFICANCE,
     format_verdict,
     spread_views,
     verification_problem,
     verify_mount,
 )
-from experiments.bench.verify import learned_levels
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
-from experiments.verify import EXIT_UNTESTED
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
 from tests.hec_cli import run_hec, simulated_dataset
 
 SHIFT = np.array([0.0006, -0.0006, 0.0005, *np.radians([0.12, 0.1, -0.12])])  # ~1 mm, ~0.2 deg

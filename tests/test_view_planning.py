@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry.kinematics import UR5, forward
-from estimator.geometry.transforms import make_transform
-from estimator.geometry.waypoints import Waypoint, read_waypoint_file, rotation_rich_waypoints
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.observability import frame_information, state_information
-from estimator.solve.problem import build_problem
-from estimator.solve.view_planning import (
+from hec.estimator.geometry.kinematics import UR5, forward
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.geometry.waypoints import Waypoint, read_waypoint_file, rotation_rich_waypoints
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.observability import frame_information, state_information
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.view_planning import (
     CRITERIA,
     candidate_views,
     eliminate_board,
@@ -25,7 +25,7 @@ from estimator.solve.view_planning import (
     reachable,
     view_informations,
 )
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount
 from tests.hec_cli import run_hec
 
 NOISE = SyntheticNoise()
@@ -212,7 +212,7 @@ def test_hec_plan_for_a_real_cell_keeps_its_views_in_the_cell_files_workspace_bo
     """Planned from a calibration and its dataset, with the workspace box just around the recorded
     flange positions: every planned flange is inside the box and reachable, and the plan predicts
     less than the recorded views do."""
-    from estimator.io.dataset import load_dataset
+    from hec.estimator.io.dataset import load_dataset
 
     cal = tmp_path / "cal.json"
     code, _, err = run_hec(["calibrate", str(default_dataset), "--no-loo", "--json", str(cal), "--quiet"])

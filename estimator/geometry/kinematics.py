@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import invert
+from hec.estimator.geometry.transforms import invert
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ a pose T = (R, t) is perturbed by delta = (dt, dtheta), (6,), as
 
 so for T_flange_cam the translation part is in the flange frame and the rotation
 part about the camera's axes. This is also how the simulator perturbs reported
-flange poses (sim.noise.perturb_flange_pose).
+flange poses (hec.sim.noise.perturb_flange_pose).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import make_transform
+from hec.estimator.geometry.transforms import make_transform
 
 SMALL_ANGLE = 1e-8
 

@@ -1,6 +1,6 @@
 """Where one homography fitted over a marker's whole image puts its corners under lens distortion.
 
-The QR detector (estimator.targets.qr_fit) aligns each marker's code to the image with one
+The QR detector (hec.estimator.targets.qr_fit) aligns each marker's code to the image with one
 homography, so the corners it reports are that homography's corners. Under lens distortion the
 image of a flat square is not the image of a homography, and the homography that fits it best
 misses the distorted corners: with the realistic cell's lens (k1 = 0.13, k2 = -0.30 at 640 x 480)
@@ -16,7 +16,7 @@ The distorted points are mapped back through the homography through the distorte
 is left is ~1e-3 of the symbol, so one linear step from that homography gives the fit (within
 0.5 % of the exact least-squares fit's corner shifts).
 
-Symbol coordinates (a, b) as in estimator.targets.qr_fit: corners (0, 0), (1, 0), (1, 1), (0, 1).
+Symbol coordinates (a, b) as in hec.estimator.targets.qr_fit: corners (0, 0), (1, 0), (1, 1), (0, 1).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, distort
+from hec.estimator.geometry.camera import CameraIntrinsics, distort
 
 QUADRATURE_SIDE = 4
 # Forward-difference steps of the derivatives: normalised image coordinates of a corner; pixels of

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.transforms import (
+from hec.estimator.geometry.transforms import (
     invert,
     make_transform,
     rotation_about,

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.io.jsonfile import read_json_object
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.common.noise import LearnedNoiseLevels
 
 CALIBRATION_FORMAT = "hec-calibration"
 CALIBRATION_VERSION = 1
@@ -64,23 +65,6 @@ def covariance_field(data: dict, key: str, path: Path, error: type[Exception]) -
 
 
 @dataclass(frozen=True)
-class LearnedNoiseLevels:
-    """The noise levels a calibration learned (its JSON 'noise.learned'): pixel_scale and depth_scale
-    multiply the detector's corner and the depth model's sigmas; the flange pose noise per base axis
-    (metres) and per flange axis (radians). self_calibration: the corrected camera, board, depth and
-    arm parameters by name (estimator.solve.self_calibration), empty when none. depth_used: False
-    when the calibration left the depths out, for they disagreed with the pixels
-    (estimator.solve.depth_check; 'noise.depth_check.used')."""
-
-    pixel_scale: float
-    depth_scale: float
-    robot_translation_sigma_m: float
-    robot_rotation_sigma_rad: float
-    self_calibration: dict[str, float]
-    depth_used: bool = True
-
-
-@dataclass(frozen=True)
 class CalibrationFile:
     """One result of a calibration file. T_flange_cam: (4, 4), metres (the camera optical frame in the
     flange frame). covariance: (6, 6) in the file's 'covariance_convention', None when the method gave
@@ -119,7 +103,7 @@ def _pick_result(data: dict, path: Path, method: str | None) -> dict:
 
 
 def learned_noise_levels(noise: dict | None, path: Path) -> LearnedNoiseLevels | None:
-    """The levels of a calibration's 'noise' object (estimator.solve.noise_learning.LearnedNoise's
+    """The levels of a calibration's 'noise' object (hec.estimator.solve.noise_learning.LearnedNoise's
     to_dict), None without one; raises CalibrationFileError naming path when it is malformed."""
     if noise is None:
         return None

@@ -4,33 +4,33 @@ One format serves the simulator, the real cell and imports. A dataset is a
 folder a person can open without this project::
 
     dataset.json        format, version, source, frame count, camera intrinsics, depth scale, the depth noise
-                        model ('depth_noise', see estimator.observe.depth.DepthNoiseModel; optional), the
+                        model ('depth_noise', see hec.estimator.observe.depth.DepthNoiseModel; optional), the
                         noise of the reported flange poses ('robot_pose_noise': translation_sigma_m,
-                        rotation_sigma_rad, see estimator.solve.problem.RobotPoseNoise; optional), the arm
+                        rotation_sigma_rad, see hec.estimator.solve.problem.RobotPoseNoise; optional), the arm
                         whose nominal kinematics the joints are read with ('robot_model', 'ur5' or 'ur5e';
                         optional, a simulation's is its scenario's robot), (imports) 'provenance': the
                         layout, source files, conventions and when; 'pose_pairs_file' for a dataset of
                         pose pairs (camera and board_file may then be null); and (simulation) seed,
                         scenario, skipped waypoints
     board.json          the board definition (hec-board v1)
-    pose_pairs.json     a dataset of imported pose pairs only (estimator.observe.pose_pairs): its
+    pose_pairs.json     a dataset of imported pose pairs only (hec.estimator.observe.pose_pairs): its
                         observations, which nothing regenerates
     frames.csv          one row a frame: frame, time_s, rgb, depth, the reported T_base_flange as
                         x_m,y_m,z_m,qw,qx,qy,qz and joints q1_rad..qN_rad (any N, 0 too: N from the header;
                         6 for a UR arm); depth empty for a frame without depth, rgb empty in a dataset
-                        of pose pairs (estimator.observe.pose_pairs); a recorded session adds waypoint
+                        of pose pairs (hec.estimator.observe.pose_pairs); a recorded session adds waypoint
                         (the waypoint's index) and depth_samples (its image, or empty)
     rgb/NNNNNN.png      colour, 8-bit RGB
     depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
     depth_samples/NNNNNN.png  optional, 8-bit: valid depth samples averaged per pixel
     ground_truth.json   simulation only: T_flange_cam, T_base_board, T_world_base
                         and per frame the true T_base_flange and joints
-    detections.json     optional cache written by `hec detect` (estimator.observe.observations)
+    detections.json     optional cache written by `hec detect` (hec.estimator.observe.observations)
     overlay/NNNNNN.png  optional detection pictures written by `hec detect --overlay`
 
 Depth is aligned to the colour image and shares its intrinsics. A rendered dataset (DatasetWriter)
 is written into a temporary sibling folder and renamed into place when it is complete, so a failed
-run never leaves a folder that looks finished. A recorded session (estimator.io.recorder) is
+run never leaves a folder that looks finished. A recorded session (hec.estimator.io.recorder) is
 written in place frame by frame, so an interruption keeps every frame captured before it; dataset.json
 'recording' says whether it is 'in progress', 'interrupted' or 'complete'.
 """
@@ -41,26 +41,25 @@ import csv
 import json
 import os
 import shutil
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
-from estimator.io.depth_png import decode_depth, encode_depth
-from estimator.io.files import open_text, write_atomic
-from estimator.io.jsonfile import read_json_object
-from estimator.io.lock import remove_dead_partials
-from estimator.io.png import write_png
-from estimator.targets.kinds import load_board
-from estimator.targets.target import BoardDefinitionError, Target
+from hec.estimator.common.depth_png import encode_depth
+from hec.estimator.common.files import open_text, write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
+from hec.estimator.io.lock import remove_dead_partials
+from hec.estimator.io.png import write_png
+from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError, Frame, GroundTruth
+from hec.estimator.targets.kinds import load_board
+from hec.estimator.targets.target import BoardDefinitionError, Target
 
 FORMAT = "hec-dataset"
 VERSION = 1
 POSE_COLUMNS = ("frame", "time_s", "rgb", "depth", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
-UR_JOINTS = 6
 
 
 def frame_columns(joint_count: int = UR_JOINTS) -> tuple[str, ...]:
@@ -70,54 +69,6 @@ def frame_columns(joint_count: int = UR_JOINTS) -> tuple[str, ...]:
 
 FRAME_COLUMNS = frame_columns()
 SESSION_COLUMNS = ("waypoint", "depth_samples")
-
-
-class DatasetError(ValueError):
-    """A dataset folder is missing a file or has a bad field."""
-
-
-@dataclass
-class Frame:
-    """One RGB-D capture with the robot's report.
-
-    rgb: (H, W, 3) uint8, RGB order. depth_m: (H, W) float32 metres along the
-    optical axis, aligned to rgb, 0 = no depth; None for a camera without depth. T_base_flange:
-    (4, 4) reported flange pose. joints: (N,) reported joint angles, radians (6 for a UR arm, N = 0
-    when unknown). time_s: capture time.
-    """
-
-    rgb: np.ndarray
-    depth_m: np.ndarray | None
-    intrinsics: CameraIntrinsics
-    T_base_flange: np.ndarray
-    joints: np.ndarray
-    time_s: float
-
-
-@dataclass
-class Capture:
-    """One view as a cell returns it: the frame; depth_samples (H, W) uint8, the valid depth
-    samples averaged per pixel (a camera burst; None when not averaged); and, in simulation,
-    the true T_base_flange (4, 4) and joints (6,)."""
-
-    frame: Frame
-    depth_samples: np.ndarray | None = None
-    true_T_base_flange: np.ndarray | None = None
-    true_joints: np.ndarray | None = None
-
-
-@dataclass
-class GroundTruth:
-    """Simulation truth: the mount, the board pose and per-frame true flange poses. model_errors:
-    the true cell where it differs from what the dataset reports (true kinematics, intrinsics,
-    depth registration, printed board; sim.model_errors.TrueCell.to_dict), or None."""
-
-    T_flange_cam: np.ndarray
-    T_base_board: np.ndarray
-    T_world_base: np.ndarray
-    model_errors: dict | None = None
-    T_base_flange: list[np.ndarray] = field(default_factory=list)
-    joints: list[np.ndarray] = field(default_factory=list)
 
 
 def _matrix(T: np.ndarray) -> list[list[float]]:
@@ -262,7 +213,7 @@ def dataset_json(
     frame_count: int,
     ground_truth: GroundTruth | None,
 ) -> dict:
-    """The dataset.json fields every dataset has (DatasetWriter, DatasetRecorder, estimator.io.memory)."""
+    """The dataset.json fields every dataset has (DatasetWriter, DatasetRecorder, hec.estimator.io.memory)."""
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -276,59 +227,6 @@ def dataset_json(
         "frames_file": "frames.csv",
         "ground_truth_file": "ground_truth.json" if ground_truth is not None else None,
     }
-
-
-@dataclass
-class Dataset:
-    """A dataset opened for reading; ``frame(i)`` loads images on demand (held in memory: from frames).
-    A dataset of pose pairs (dataset.json 'pose_pairs_file') may have no intrinsics and no board
-    (None)."""
-
-    root: Path
-    metadata: dict
-    intrinsics: CameraIntrinsics | None
-    board: Target | None
-    depth_scale_m: float
-    rows: list[dict]
-    ground_truth: GroundTruth | None
-    frames: list[Frame] | None = None
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def frame(self, i: int) -> Frame:
-        if self.frames is not None:
-            return self.frames[i]
-        row = self.rows[i]
-        if not row["rgb"]:
-            raise DatasetError(
-                f"{self.root / 'frames.csv'}: frame {i} has no image (a dataset of pose pairs: "
-                "its observations are pose_pairs.json)"
-            )
-        rgb = _read_image(self.root / row["rgb"], cv2.IMREAD_COLOR)
-        depth_m = None
-        if row["depth"]:
-            depth = _read_image(self.root / row["depth"], cv2.IMREAD_UNCHANGED)
-            if depth.dtype != np.uint16 or depth.ndim != 2:
-                raise DatasetError(f"{self.root / row['depth']}: expected a 16-bit single-channel PNG")
-            depth_m = decode_depth(depth, self.depth_scale_m)
-        return Frame(
-            rgb=cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB),
-            depth_m=depth_m,
-            intrinsics=self.intrinsics,
-            T_base_flange=row["T_base_flange"],
-            joints=row["joints"],
-            time_s=row["time_s"],
-        )
-
-
-def _read_image(path: Path, flags: int) -> np.ndarray:
-    if not path.is_file():
-        raise DatasetError(f"{path}: image file missing")
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        raise DatasetError(f"{path}: not a readable PNG image")
-    return image
 
 
 def load_dataset(path: str | Path) -> Dataset:

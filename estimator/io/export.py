@@ -18,9 +18,14 @@ from dataclasses import dataclass
 import numpy as np
 import yaml
 
-from estimator.geometry.lie import skew
-from estimator.geometry.transforms import invert, make_transform, rpy_from_transform, xyz_quat_from_transform
-from estimator.io.calibration_file import CalibrationFile
+from hec.estimator.geometry.lie import skew
+from hec.estimator.geometry.transforms import (
+    invert,
+    make_transform,
+    rpy_from_transform,
+    xyz_quat_from_transform,
+)
+from hec.estimator.io.calibration_file import CalibrationFile
 
 OPTICAL_SUFFIX = "_optical_frame"
 # camera_link (x forward, y left, z up, ROS REP 103) -> an optical frame (x right, y down, z forward).

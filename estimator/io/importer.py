@@ -1,4 +1,4 @@
-"""hec datasets from other tools' layouts (estimator.io.layouts), written atomically, with where they
+"""hec datasets from other tools' layouts (hec.estimator.io.layouts), written atomically, with where they
 came from in dataset.json's ``provenance``: the layout, the source files, the pose convention, the
 pose numbers as the source wrote them (so a later convention check can read them otherwise), the
 hec version and the time of the import."""
@@ -12,12 +12,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import DatasetWriter, Frame
-from estimator.io.depth_png import decode_depth
-from estimator.io.layouts import JointFile, LayoutError, LayoutFrames
-from estimator.observe.pose_pairs import POSE_PAIRS_FILE, PosePair, pose_pairs_json
-from estimator.targets.target import Target
+from hec.estimator.common.depth_png import decode_depth
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.io.dataset import DatasetWriter
+from hec.estimator.io.layouts import JointFile, LayoutError, LayoutFrames
+from hec.estimator.observe.frames import Frame
+from hec.estimator.observe.pose_pairs import POSE_PAIRS_FILE, PosePair, pose_pairs_json
+from hec.estimator.targets.target import Target
 
 
 def provenance(
@@ -37,7 +38,7 @@ def provenance(
         "layout": layout,
         "sources": [str(Path(s).resolve()) for s in sources],
         "imported_by": f"hec {hec_version}",
-        "imported_at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "imported_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
     if frames is not None:
         record["pose_convention"] = frames.convention.to_dict()

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 import yaml
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.files import write_atomic
+from hec.estimator.common.files import write_atomic
+from hec.estimator.geometry.camera import CameraIntrinsics
 
 
 class IntrinsicsFileError(ValueError):

@@ -1,6 +1,6 @@
 """Other tools' hand-eye data layouts, read and written.
 
-- ``folder``: a folder of images plus a pose file in any convention (estimator.io.pose_file), one
+- ``folder``: a folder of images plus a pose file in any convention (hec.estimator.io.pose_file), one
   pose per image: by the pose file's ``image`` column, else the images in name order; depth
   images (16-bit PNG, same names) optionally in another folder; joint angles optionally in a joint
   file (any count per image; a UR arm's six in its own order or the ROS driver's).
@@ -26,11 +26,11 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.kinematics import joints_in_arm_order
-from estimator.geometry.transforms import make_transform
-from estimator.io.files import write_atomic
-from estimator.io.pose_file import PoseConvention, poses_from_values, read_pose_values, values_from_poses
-from estimator.observe.pose_pairs import PosePair
+from hec.estimator.common.files import write_atomic
+from hec.estimator.geometry.kinematics import joints_in_arm_order
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.io.pose_file import PoseConvention, poses_from_values, read_pose_values, values_from_poses
+from hec.estimator.observe.pose_pairs import PosePair
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VISP_CONVENTION = PoseConvention(
@@ -45,7 +45,7 @@ class LayoutError(ValueError):
 
 @dataclass(frozen=True)
 class JointFile:
-    """A joint file (estimator.io.pose_file's format, field "joints"): angles in unit ("rad" or
+    """A joint file (hec.estimator.io.pose_file's format, field "joints"): angles in unit ("rad" or
     "deg"); six angles of a UR arm in order ("arm" or "ros-driver", kinematics.JOINT_ORDERS)."""
 
     path: Path

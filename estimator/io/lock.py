@@ -12,7 +12,7 @@ import re
 import shutil
 from pathlib import Path
 
-from estimator.io.files import errors_naming
+from hec.estimator.common.files import errors_naming
 
 LOCK_FILE = ".hec-lock"
 _PARTIAL = re.compile(r"\.partial-(\d+)$")

@@ -9,11 +9,12 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
-from estimator.io.dataset import Dataset, Frame, GroundTruth, dataset_json
-from estimator.io.depth_png import decode_depth, encode_depth
-from estimator.targets.target import Target
+from hec.estimator.common.depth_png import decode_depth, encode_depth
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
+from hec.estimator.io.dataset import dataset_json
+from hec.estimator.observe.frames import Dataset, Frame, GroundTruth
+from hec.estimator.targets.target import Target
 
 
 def stored_frame(frame: Frame, depth_scale_m: float) -> Frame:

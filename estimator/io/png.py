@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.io.files import write_atomic
+from hec.estimator.common.files import write_atomic
 
 
 def write_png(path: Path, image: np.ndarray) -> Path:

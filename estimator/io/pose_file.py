@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.transforms import invert
+from hec.estimator.geometry.transforms import invert
 
 EULER_SEQUENCES = tuple(
     s for case in (str.lower, str.upper) for s in map(case, ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx"))

@@ -1,4 +1,4 @@
-"""The recorder of a calibration session: a dataset folder (estimator.io.dataset's format)
+"""The recorder of a calibration session: a dataset folder (hec.estimator.io.dataset's format)
 written frame by frame, so an interruption loses nothing captured before it, and reopened to
 resume."""
 
@@ -11,13 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import (
+from hec.estimator.common.files import open_text, write_atomic
+from hec.estimator.common.jsonfile import first_field_difference, read_json_object
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.io.dataset import (
     FRAME_COLUMNS,
     SESSION_COLUMNS,
-    Capture,
-    DatasetError,
-    GroundTruth,
     dataset_json,
     dump_json,
     ground_truth_dict,
@@ -25,12 +24,11 @@ from estimator.io.dataset import (
     read_ground_truth,
     write_frame_files,
 )
-from estimator.io.files import open_text, write_atomic
-from estimator.io.jsonfile import first_field_difference, read_json_object
-from estimator.io.lock import acquire_lock, release_lock
-from estimator.io.png import write_png
-from estimator.targets.kinds import load_board
-from estimator.targets.target import Target
+from hec.estimator.io.lock import acquire_lock, release_lock
+from hec.estimator.io.png import write_png
+from hec.estimator.observe.frames import Capture, DatasetError, GroundTruth
+from hec.estimator.targets.kinds import load_board
+from hec.estimator.targets.target import Target
 
 
 class DatasetRecorder:

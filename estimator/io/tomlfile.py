@@ -3,10 +3,15 @@ and pydantic sections that reject unknown keys."""
 
 from __future__ import annotations
 
-import tomllib
+import sys
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, ValidationError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10 (ROS 2 Humble's): the same parser as a package
+    import tomli as tomllib
 
 
 class Section(BaseModel):

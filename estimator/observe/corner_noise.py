@@ -1,7 +1,7 @@
 """The corner noise a dataset actually reached, measured from how well its markers agree.
 
 The detector's corner covariance is the image-noise part of the code alignment plus a constant
-floor per coordinate (estimator.targets.qr_fit) measured on renders; blur, lighting, a lens
+floor per coordinate (hec.estimator.targets.qr_fit) measured on renders; blur, lighting, a lens
 the alignment's per-marker homography does not model, or a real camera's processing give more.
 What they give shows in the data: in every frame all markers lie on one board, so one model
 must explain every corner of every frame at once:
@@ -46,11 +46,11 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 from scipy.sparse import lil_matrix
 
-from estimator.geometry.camera import CameraIntrinsics, distort, pixel_rays
-from estimator.observe.observations import FrameObservations, with_pixel_floor
-from estimator.targets.kinds import detector_for
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.target import Target
+from hec.estimator.geometry.camera import CameraIntrinsics, distort, pixel_rays
+from hec.estimator.observe.observations import FrameObservations, with_pixel_floor
+from hec.estimator.targets.kinds import detector_for
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.target import Target
 
 # Fewest residual degrees of freedom for a measured figure.
 MIN_DOF = 16

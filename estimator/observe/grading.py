@@ -3,7 +3,7 @@
 The true camera pose of frame i is T_base_cam = T_base_flange_true[i] @ T_flange_cam,
 so the true board in the camera is T_cam_board = T_base_cam^-1 @ T_base_board. The true
 marker corners are the printed ones seen through the true camera (lens included) when the
-truth records model errors (sim.model_errors), else the definition's through the dataset's.
+truth records model errors (hec.sim.model_errors), else the definition's through the dataset's.
 Normalised errors are e^T C^-1 e / dim, whose mean is 1 when the covariances C are
 honest.
 """
@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, project
-from estimator.geometry.transforms import invert, transform_points
-from estimator.io.dataset import GroundTruth
-from estimator.observe.observations import FrameObservations
-from estimator.targets.target import Target
+from hec.estimator.geometry.camera import CameraIntrinsics, project
+from hec.estimator.geometry.transforms import invert, transform_points
+from hec.estimator.observe.frames import GroundTruth
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.targets.target import Target
 
 # A detection this far (pixels, any corner) from its marker's true corners has the wrong ID.
 WRONG_ID_PX = 5.0

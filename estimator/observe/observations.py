@@ -1,8 +1,8 @@
 """Landmark observations: what the estimators see of each marker in each frame, with covariances.
 
-Per frame and marker: the corner pixels and the centre (from estimator.targets.qr),
+Per frame and marker: the corner pixels and the centre (from hec.estimator.targets.qr),
 the depth at the centre and the corners (from the plane under the marker,
-estimator.observe.depth), and those five points back-projected into the camera frame
+hec.estimator.observe.depth), and those five points back-projected into the camera frame
 (OpenCV optical frame, metres). Covariances combine the pixel covariance of
 the fit and the depth noise model sigma(z):
 p = z(u, v) * ray(u, v), so dp/d(u, v) = z dray/d(u, v) + ray (dz/du, dz/dv)
@@ -12,7 +12,7 @@ A frame that cannot be used keeps its row with ``problem`` set; a marker
 without depth keeps its pixels with ``depth_note`` saying why. Observations
 are cached beside a dataset in ``detections.json`` (format hec-detections v1)
 so estimators can be rerun without detecting again, with the corner noise floor learned
-from the dataset (estimator.observe.corner_noise) when their covariances use it.
+from the dataset (hec.estimator.observe.corner_noise) when their covariances use it.
 """
 
 from __future__ import annotations
@@ -26,15 +26,15 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, pixel_rays
-from estimator.io.dataset import Dataset, DatasetError, Frame
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
-from estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
-from estimator.targets.detection import BLURRED_SHARPNESS, MarkerDetection, Rejection
-from estimator.targets.kinds import detector_for
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.target import TargetDetector
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.geometry.camera import CameraIntrinsics, pixel_rays
+from hec.estimator.observe.depth import DepthFitError, DepthNoiseModel, fit_marker_depth
+from hec.estimator.observe.frames import Dataset, DatasetError, Frame
+from hec.estimator.targets.detection import BLURRED_SHARPNESS, MarkerDetection, Rejection
+from hec.estimator.targets.kinds import detector_for
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.target import TargetDetector
 
 CACHE_FILE = "detections.json"
 CACHE_FORMAT = "hec-detections"
@@ -48,7 +48,7 @@ class ObservationCacheError(ValueError):
 
 @dataclass(frozen=True)
 class MarkerObservation(MarkerDetection):
-    """One marker in one frame: its detection (estimator.targets.qr.MarkerDetection) plus depth.
+    """One marker in one frame: its detection (hec.estimator.targets.qr.MarkerDetection) plus depth.
 
     Points are (centre, corner 0..P-1), P the board's points per marker (4 for a QR code, 1 for
     a chessboard corner, whose centre is the point itself). depth_m (1 + P,), depth_cov
@@ -205,7 +205,7 @@ def with_pixel_floor(
 
 def _plane_slope(uv: np.ndarray, z: np.ndarray) -> np.ndarray:
     """(n, 2) dz/d(u, v) at the pixels uv (n, 2), n >= 3 apart, of depths z (n,) on one plane, metres per
-    pixel: 1/z is linear in (u, v) there (estimator.observe.depth.MarkerDepth)."""
+    pixel: 1/z is linear in (u, v) there (hec.estimator.observe.depth.MarkerDepth)."""
     A = np.column_stack([np.ones(len(uv)), uv - uv.mean(axis=0)])
     coeffs = np.linalg.lstsq(A, 1.0 / z, rcond=None)[0]
     return -(z * z)[:, None] * coeffs[1:][None, :]
@@ -321,7 +321,7 @@ def save_observations(
 ) -> Path:
     """Write DATASET/detections.json (temporary file, then rename). Returns its path.
     corner_noise: the corner noise measured on the dataset and the floors its covariances use
-    (estimator.observe.corner_noise.CornerNoise.to_dict), if they were learned."""
+    (hec.estimator.observe.corner_noise.CornerNoise.to_dict), if they were learned."""
     data = {
         "format": CACHE_FORMAT,
         "version": CACHE_VERSION,

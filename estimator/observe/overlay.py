@@ -13,7 +13,7 @@ import textwrap
 import cv2
 import numpy as np
 
-from estimator.observe.observations import FrameObservations
+from hec.estimator.observe.observations import FrameObservations
 
 SCALE = 2
 _GREEN = (40, 200, 40)

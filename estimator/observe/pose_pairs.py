@@ -16,7 +16,7 @@ File layout::
                 "covariance": null | [[...6...] x 6]}, ...]}
 
 covariance: of T_cam_board, (6, 6) over the perturbation (dt, dtheta) of
-estimator.geometry.lie (dt in the camera frame, metres; dtheta about the board's axes,
+hec.estimator.geometry.lie (dt in the camera frame, metres; dtheta about the board's axes,
 radians), or null when the source gave none (the estimators then learn it).
 """
 
@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
 
 POSE_PAIRS_FILE = "pose_pairs.json"
 POSE_PAIRS_FORMAT = "hec-pose-pairs"

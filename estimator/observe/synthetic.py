@@ -1,9 +1,9 @@
 """Measurement-level synthetic observations: the truth projected, plus Gaussian noise.
 
 No rendering and no detector: corners are the true projections (where the detector's
-homography fit puts them under lens distortion, estimator.geometry.marker_fit_bias) plus
+homography fit puts them under lens distortion, hec.estimator.geometry.marker_fit_bias) plus
 N(0, sigma^2) per coordinate, corner depths the true depth plus N(0, sigma(z)^2) each, and the
-reported flange poses the true ones perturbed as estimator.geometry.lie describes. The
+reported flange poses the true ones perturbed as hec.estimator.geometry.lie describes. The
 observations carry exactly the covariances the noise was drawn from, so an
 estimator's errors can be compared with the Cramer-Rao bound.
 """
@@ -14,15 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics, project
-from estimator.geometry.lie import pose_plus
-from estimator.geometry.marker_fit_bias import marker_fit_bias
-from estimator.geometry.transforms import invert, transform_points
-from estimator.observe.depth import DepthNoiseModel
-from estimator.observe.observations import FrameObservations, MarkerObservation, back_projected_points
-from estimator.solve.problem import RobotPoseNoise
-from estimator.targets.qr_fit import center_from_corners, point_jacobian_wrt_corners
-from estimator.targets.target import Target
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.camera import CameraIntrinsics, project
+from hec.estimator.geometry.lie import pose_plus
+from hec.estimator.geometry.marker_fit_bias import marker_fit_bias
+from hec.estimator.geometry.transforms import invert, transform_points
+from hec.estimator.observe.depth import DepthNoiseModel
+from hec.estimator.observe.observations import FrameObservations, MarkerObservation, back_projected_points
+from hec.estimator.targets.qr_fit import center_from_corners, point_jacobian_wrt_corners
+from hec.estimator.targets.target import Target
 
 
 @dataclass(frozen=True)

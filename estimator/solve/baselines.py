@@ -1,7 +1,8 @@
 """The OpenCV hand-eye baselines, run on the same corners as our estimators.
 
-Each frame's board pose T_cam_board comes from its corner pixels (estimator.solve.initialise.board_pose_pnp);
-OpenCV then solves for the mount from these poses and the reported flange poses T_base_flange.
+Each frame's board pose T_cam_board comes from its corner pixels
+(hec.estimator.solve.initialise.board_pose_pnp); OpenCV then solves for the mount from these poses
+and the reported flange poses T_base_flange.
 
 - ``opencv-tsai|park|horaud|andreff|daniilidis``: ``cv2.calibrateHandEye`` (AX = XB). In OpenCV's names
   gripper2base = T_base_flange, target2cam = T_cam_board, and the result cam2gripper = T_flange_cam.
@@ -26,17 +27,17 @@ import time
 import cv2
 import numpy as np
 
-from estimator.geometry.transforms import invert, make_transform
-from estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
-from estimator.solve.initialise import (
+from hec.estimator.geometry.transforms import invert, make_transform
+from hec.estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
+from hec.estimator.solve.initialise import (
     MIN_AXIS_SPREAD,
     board_pose_pnp,
     mean_pose,
     no_rotation_message,
     rotation_spread,
 )
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.problem import CalibrationInputError, CalibrationProblem
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
 OPENCV_METHODS: dict[str, int] = {
     "opencv-tsai": cv2.CALIB_HAND_EYE_TSAI,

@@ -4,12 +4,12 @@ Jointly optimises T_flange_cam, the board pose (or landmarks), the optional dept
 scale and every frame's flange pose error delta_i over all whitened reprojection
 and depth residuals, the robot-noise prior of each delta_i, the user's prior on
 T_flange_cam if given, and the same wide prior on the state the filters start from.
-Parameters are perturbations of the starting state (estimator.geometry.lie convention), so the
+Parameters are perturbations of the starting state (hec.estimator.geometry.lie convention), so the
 result is comparable with the filters.
 Gauss-Newton with step halving (iteratively reweighted for a Huber loss on the whitened
 residuals when robust) on the normal equations of the analytic Jacobian, solved by the Schur
 complement over the per-frame deltas (each frame's residuals depend on the state and on its own
-delta only: estimator.solve.block_arrow). (scipy's least_squares reached the same optimum: its exact
+delta only: hec.estimator.solve.block_arrow). (scipy's least_squares reached the same optimum: its exact
 trust-region solver took ~10x longer, its sparse one, LSMR, did not converge in 300 evaluations.)
 Solves run on one BLAS thread: OpenBLAS threads made them 10x slower on a busy 2-core machine.
 Covariance: the state block of inv(J^T W J) at the optimum (W the Huber weights).
@@ -25,15 +25,15 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from estimator.geometry.lie import pose_plus_jacobian_rows
-from estimator.solve.block_arrow import BlockLayout, global_inverse, normal_solve
-from estimator.solve.calibration import Calibration, MethodOptions, Prior, calibration_from_state
-from estimator.solve.filters import gate_threshold, initial_covariance, marker_rows
-from estimator.solve.initialise import initial_state
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.noise_levels import NoiseLevels
-from estimator.solve.problem import CalibrationProblem
-from estimator.solve.stacked_prediction import (
+from hec.estimator.geometry.lie import pose_plus_jacobian_rows
+from hec.estimator.solve.block_arrow import BlockLayout, global_inverse, normal_solve
+from hec.estimator.solve.calibration import Calibration, MethodOptions, Prior, calibration_from_state
+from hec.estimator.solve.filters import gate_threshold, initial_covariance, marker_rows
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.noise_levels import NoiseLevels
+from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.stacked_prediction import (
     StackedFrames,
     StackedPrediction,
     predict_frames,
@@ -67,7 +67,7 @@ class BatchObjective:
     """Residuals and Jacobian over params = [state perturbation (n), delta_1 .. delta_N (6 each)]:
     rows [the state's prior (n), the user's prior (6, if given), per frame its whitened
     measurements and its delta's prior (6, with robot noise)], all frames predicted at once
-    (estimator.solve.stacked_prediction). With levels, the objective of
+    (hec.estimator.solve.stacked_prediction). With levels, the objective of
     noise_levels.scaled_problem(problem, levels) without building that problem: the stacked
     whitening scaled, the robot noise levels'; problem keeps the declared whitening (use stacked's)."""
 

@@ -3,7 +3,7 @@
 The result is T_flange_cam: the camera's optical frame (OpenCV: x right, y down,
 z forward) in the flange (tool0) frame, OpenCV's ``cam2gripper``. Use it as
 T_base_cam = T_base_flange @ T_flange_cam. Its covariance is over the perturbation
-(dt, dtheta) of estimator.geometry.lie: dt in metres along the flange axes, dtheta in
+(dt, dtheta) of hec.estimator.geometry.lie: dt in metres along the flange axes, dtheta in
 radians about the camera axes.
 """
 
@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.geometry.lie import pose_minus, so3_right_jacobian_inverse
-from estimator.geometry.transforms import transform_points
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import CalibrationProblem
+from hec.estimator.geometry.lie import pose_minus, so3_right_jacobian_inverse
+from hec.estimator.geometry.transforms import transform_points
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.problem import CalibrationProblem
 
 # Prior used when the caller gives none: so wide it adds no information.
 DEFAULT_PRIOR_SIGMA_M = 0.5
@@ -25,7 +25,7 @@ DEFAULT_PRIOR_SIGMA_RAD = 1.0
 
 @dataclass(frozen=True)
 class Prior:
-    """A guess of T_flange_cam (4, 4) with its (6, 6) covariance (estimator.geometry.lie convention):
+    """A guess of T_flange_cam (4, 4) with its (6, 6) covariance (hec.estimator.geometry.lie convention):
     the true mount is pose_plus(T_flange_cam, e), e ~ N(0, covariance). Estimators treat it
     as one more measurement (the filters fuse it after the frames); they start from the closed
     form when the frames give one, so a wrong guess with an honest (wide) covariance does no harm."""
@@ -51,7 +51,7 @@ class MethodOptions:
     geometry known) or 'landmarks' (every corner a free point). estimate_depth_scale: add
     a depth scale factor to the state. robust: down-weight outliers (batch: Huber loss,
     filters: gate markers whose innovation fails a chi-square test). learn_noise: hec's methods
-    first learn the noise levels from all frames (estimator.solve.noise_learning) and run with
+    first learn the noise levels from all frames (hec.estimator.solve.noise_learning) and run with
     them, the outliers of that pass left out instead of gated; False: the declared levels."""
 
     prior: Prior | None = None

@@ -5,16 +5,16 @@ frame i, at frame i's REPORTED flange pose F_i (the robot's own error is part of
 
 - pixels: the board corners c of frame i's markers, p_base = T_base_board c (board model) or the
   fold's landmarks (landmark model), projected through inv(F_i X) and problem.intrinsics
-  (distortion included; estimator.solve.measurement_model.predict_frame), against the measured
+  (distortion included; hec.estimator.solve.measurement_model.predict_frame), against the measured
   corners. RMS of the pixel distance over the frame's corners.
 - base frame, mm: frame i's own view of the board, its PnP pose C_i = T_cam_board_i
-  (estimator.solve.initialise.board_pose_pnp), mapped into the base frame, F_i X C_i c, against the
+  (hec.estimator.solve.initialise.board_pose_pnp), mapped into the base frame, F_i X C_i c, against the
   fold's board (or landmarks) in the base frame. RMS of the 3D distance over the frame's corners:
   roughly the error of picking a point at the board's distance with this calibration.
 
 X is the fold's T_flange_cam. Both figures include frame i's own noise (its corner noise, its
 flange pose error, its PnP pose error): floor_px and floor_mm are what that noise alone gives
-(estimator.solve.prediction_floor), so a figure near its floor says the calibration predicts new
+(hec.estimator.solve.prediction_floor), so a figure near its floor says the calibration predicts new
 views as well as the measurements allow, and one well above it a model error or frames that
 disagree. With the landmark model, markers the fold never saw are not predicted (corners counts
 what was). The overall figures are RMS over every predicted corner of every
@@ -35,12 +35,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from estimator.geometry.transforms import transform_points
-from estimator.solve.calibration import Calibration
-from estimator.solve.initialise import board_pose_pnp, mean_pose
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.prediction_floor import view_noise_floor
-from estimator.solve.problem import (
+from hec.estimator.geometry.transforms import transform_points
+from hec.estimator.solve.calibration import Calibration
+from hec.estimator.solve.initialise import board_pose_pnp, mean_pose
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.prediction_floor import view_noise_floor
+from hec.estimator.solve.problem import (
     MIN_FRAMES,
     CalibrationInputError,
     CalibrationProblem,
@@ -54,7 +54,7 @@ Calibrate = Callable[[CalibrationProblem], Calibration]
 class FoldPrediction:
     """Frame ``frame`` predicted by the calibration without it. rms_px: corner pixel distance RMS;
     rms_mm: base-frame corner distance RMS, mm; floor_px, floor_mm: the RMS the frame's own noise
-    alone would give (estimator.solve.prediction_floor); the mm and floor figures are None when PnP
+    alone would give (hec.estimator.solve.prediction_floor); the mm and floor figures are None when PnP
     fails on the frame. corners: the corners compared; time_s: the fold's calibration and prediction."""
 
     frame: int
@@ -140,7 +140,7 @@ class HeldOut:
     """One held-out frame's prediction, per corner of its markers (those the fold's map holds):
     d_px (P,) pixel distances, d_m (P,) base-frame distances in metres, and the expected squares
     of both from the frame's own noise alone, floor_px2 (P,) and floor_m2 (P,)
-    (estimator.solve.prediction_floor). The last three are None when PnP fails on the frame."""
+    (hec.estimator.solve.prediction_floor). The last three are None when PnP fails on the frame."""
 
     d_px: np.ndarray
     d_m: np.ndarray | None

@@ -27,9 +27,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import delta_size, pose_minus
-from estimator.solve.noise_levels import NoiseLevels
-from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import delta_size, pose_minus
+from hec.estimator.solve.noise_levels import NoiseLevels
+from hec.estimator.solve.problem import CalibrationProblem
 
 # On ideal measurement-level data (40 seeds) the smallest p was 0.0035; the realistic cell's depths
 # that moved the mount 2-3 mm gave chi-squares in the hundreds.
@@ -152,7 +153,7 @@ def depth_check(
     misfits: tuple[float, float],
 ) -> DepthCheck:
     """The test of the module doc: mounts (4, 4) with and without depths, their covariances (6, 6)
-    (estimator.geometry.lie convention, at each estimate) and misfits (with, without)."""
+    (hec.estimator.geometry.lie convention, at each estimate) and misfits (with, without)."""
     delta = pose_minus(T_flange_cam_depth, T_flange_cam_pixels)
     L = np.linalg.cholesky(covariance_pixels)
     removed = np.linalg.solve(L, np.linalg.solve(L, covariance_pixels - covariance_depth).T)

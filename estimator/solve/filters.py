@@ -11,7 +11,7 @@ use the information form with whitened measurements (R = I):
 
 with a the perturbation of the augmented state, r_j the whitened residual and H
 its Jacobian at the j-th iterate (ekf: one iterate, iekf: until the step is below
-tolerance). The state is then moved to the estimate (estimator.geometry.lie convention).
+tolerance). The state is then moved to the estimate (hec.estimator.geometry.lie convention).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import pose_plus_jacobian
-from estimator.solve.calibration import (
+from hec.estimator.geometry.lie import pose_plus_jacobian
+from hec.estimator.solve.calibration import (
     DEFAULT_PRIOR_SIGMA_M,
     DEFAULT_PRIOR_SIGMA_RAD,
     Calibration,
@@ -33,9 +33,9 @@ from estimator.solve.calibration import (
     Prior,
     calibration_from_state,
 )
-from estimator.solve.initialise import Start, initial_state
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.initialise import Start, initial_state
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 IEKF_MAX_ITERATIONS = 10
 IEKF_TOLERANCE = 1e-10

@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import pose_minus
-from estimator.solve.measurement_model import predict_frame
-from estimator.solve.noise_learning import LearnedNoise
-from estimator.solve.problem import CalibrationProblem
-from estimator.solve.self_calibration import (
+from hec.estimator.geometry.lie import pose_minus
+from hec.estimator.solve.measurement_model import predict_frame
+from hec.estimator.solve.noise_learning import LearnedNoise
+from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.self_calibration import (
     KINEMATIC_NUISANCE,
     NOTEWORTHY,
     NOTEWORTHY_MARKER_SHIFT_M,

@@ -15,11 +15,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.geometry.lie import so3_log
-from estimator.geometry.transforms import invert, make_transform, rotation_angle
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.problem import CalibrationInputError, CalibrationProblem, FrameMeasurements
+from hec.estimator.geometry.lie import so3_log
+from hec.estimator.geometry.transforms import invert, make_transform, rotation_angle
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem, FrameMeasurements
 
 # Pairs whose flange rotation differs by less than this carry no rotation information.
 MIN_PAIR_ROTATION_RAD = np.radians(5.0)

@@ -6,12 +6,12 @@ A board corner c (board frame) seen in frame i:
     p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
     pixel  = project(p_cam) + b               (K and OpenCV distortion; b: where the detector's
                                                homography fit over the marker's distorted image
-                                               puts its corners, estimator.geometry.marker_fit_bias;
+                                               puts its corners, hec.estimator.geometry.marker_fit_bias;
                                                QR boards only, whose corners come from that fit)
     depth  = exp(s) (depth_scale * p_cam.z + o + tx p_cam.x + ty p_cam.y)
              (s, o: problem.depth_bias, tx, ty: problem.depth_tilt, 0 unless self-calibrated)
 
-State perturbations follow estimator.geometry.lie: (dt, dtheta) for T_flange_cam and
+State perturbations follow hec.estimator.geometry.lie: (dt, dtheta) for T_flange_cam and
 T_base_board, (dx, dy, dz) for a landmark, d(scale) for the depth scale, in this
 order in the state vector.
 """
@@ -22,14 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.geometry.camera import distort_normalized
-from estimator.geometry.lie import pose_minus, pose_plus, pose_plus_jacobian, skew_rows
-from estimator.geometry.marker_fit_bias import (
+from hec.estimator.geometry.camera import distort_normalized
+from hec.estimator.geometry.lie import pose_minus, pose_plus, pose_plus_jacobian, skew_rows
+from hec.estimator.geometry.marker_fit_bias import (
     MarkerFitBiasJacobians,
     marker_fit_bias,
     marker_fit_bias_jacobians,
 )
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ class FramePrediction:
     and y, the depth bias's log scale and offset, the board's bend along x and y and the depth's
     tilt along x and y; J_marker_shift (m, 2), with it: with respect to a shift of each row's own
     marker along the board's x and y (board mode; zero with landmarks)
-    (estimator.solve.self_calibration.CAMERA_NUISANCE)."""
+    (hec.estimator.solve.self_calibration.CAMERA_NUISANCE)."""
 
     residual: np.ndarray
     J_state: np.ndarray
@@ -196,7 +196,7 @@ def marker_points(problem: CalibrationProblem, markers: list, board: bool) -> np
 
 def homography_fitted(problem: CalibrationProblem) -> bool:
     """Whether the corners come from one homography fit over each whole marker (the QR detector's),
-    so that lens distortion biases them (estimator.geometry.marker_fit_bias)."""
+    so that lens distortion biases them (hec.estimator.geometry.marker_fit_bias)."""
     return problem.board.corners_homography_fitted
 
 
@@ -292,7 +292,7 @@ def _through_camera_points(
 ) -> np.ndarray:
     """(P, 3, n) d(u, v, depth per point)/d(x) from d(u, v, depth)/d p_cam (P, 3, 3) and d p_cam/d(x)
     (P, 3, n); d_bias_d_cam (M, 8, 12): the detector's corner bias moving with all four corners of
-    its marker (estimator.geometry.marker_fit_bias), None without distortion."""
+    its marker (hec.estimator.geometry.marker_fit_bias), None without distortion."""
     J = d_meas_d_cam @ d_cam
     if d_bias_d_cam is not None:
         P, _, n = d_cam.shape

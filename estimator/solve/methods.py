@@ -7,19 +7,19 @@ from dataclasses import replace
 
 import numpy as np
 
-from estimator.observe.observations import FrameObservations
-from estimator.solve.baselines import MISFIT_RESIDUAL_PX, OPENCV_METHODS, opencv_calibrate
-from estimator.solve.batch import batch
-from estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
-from estimator.solve.filters import run_filter
-from estimator.solve.fit_check import check_fit
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.noise_learning import LearnedNoise, learn_noise
-from estimator.solve.noise_levels import scaled_problem
-from estimator.solve.observability import observability
-from estimator.solve.problem import MIN_FRAMES, CalibrationInputError, CalibrationProblem
-from estimator.solve.seed_ekf import seed_ekf
-from estimator.solve.ukf import ukf
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.solve.baselines import MISFIT_RESIDUAL_PX, OPENCV_METHODS, opencv_calibrate
+from hec.estimator.solve.batch import batch
+from hec.estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
+from hec.estimator.solve.filters import run_filter
+from hec.estimator.solve.fit_check import check_fit
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
+from hec.estimator.solve.noise_levels import scaled_problem
+from hec.estimator.solve.observability import observability
+from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError, CalibrationProblem
+from hec.estimator.solve.seed_ekf import seed_ekf
+from hec.estimator.solve.ukf import ukf
 
 Method = Callable[[CalibrationProblem, MethodOptions, list[FrameObservations]], Calibration]
 

@@ -27,8 +27,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2, norm
 
-from estimator.geometry.lie import pose_minus
-from estimator.solve.batch import (
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_minus
+from hec.estimator.solve.batch import (
     HUBER_SCALE,
     BatchObjective,
     gauss_newton,
@@ -37,15 +38,15 @@ from estimator.solve.batch import (
     state_covariance,
     weighted_jacobian,
 )
-from estimator.solve.block_arrow import hat_diagonal
-from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.depth_check import DepthCheck, depth_check, has_depth, misfit, pixels_only
-from estimator.solve.filters import initial_covariance
-from estimator.solve.initialise import initial_state
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.noise_levels import NoiseLevels, declared_levels, scaled_problem
-from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
-from estimator.solve.self_calibration import (
+from hec.estimator.solve.block_arrow import hat_diagonal
+from hec.estimator.solve.calibration import MethodOptions, Prior
+from hec.estimator.solve.depth_check import DepthCheck, depth_check, has_depth, misfit, pixels_only
+from hec.estimator.solve.filters import initial_covariance
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.noise_levels import NoiseLevels, declared_levels, scaled_problem
+from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.self_calibration import (
     NuisanceUncertainty,
     SelfCalibrationObjective,
     adjusted_problem,
@@ -55,7 +56,7 @@ from estimator.solve.self_calibration import (
     group_names,
     noteworthy_sizes,
 )
-from estimator.solve.stacked_prediction import StackedFrames
+from hec.estimator.solve.stacked_prediction import StackedFrames
 
 GROUPS = ("pixels", "depth", "robot_translation", "robot_rotation")
 PRIOR_DOF = 3.0
@@ -65,7 +66,7 @@ VCE_COST_TOLERANCE = 1e-7
 # The declared camera, board, depth (and arm) are replaced by self-calibration when the corners,
 # the depths (or, with the arm's kinematics known, the flange poses) fit worse than this many
 # times their noise (the learned level: a chi-square per degree of freedom above 2.25,
-# estimator.solve.fit_check.BAD_FIT). White noise above the declared level triggers it too; the
+# hec.estimator.solve.fit_check.BAD_FIT). White noise above the declared level triggers it too; the
 # significance test then fixes the groups it does not need.
 MISFIT_SCALE = 1.5
 # ... and the flange poses when, besides, their chi-square is this improbable.
@@ -92,11 +93,11 @@ class LearnedNoise:
     With self-calibration (the declared model fits worse than MISFIT_SCALE times its noise):
     theta and theta_covariance over theta_names (the groups kept after the significance test),
     groups_tried (every group freed at first) and groups_kept
-    (estimator.solve.self_calibration.NUISANCE_GROUPS), consider_covariance (6, 6) that
+    (hec.estimator.solve.self_calibration.NUISANCE_GROUPS), consider_covariance (6, 6) that
     T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
     ratios and chi2_dof, with the adjusted model. mount_covariance: (6, 6) T_flange_cam's covariance at
     the optimum, theta free. depth: with depths, whether they agree with the pixels
-    (estimator.solve.depth_check); when they do not, everything here is learned from the pixels
+    (hec.estimator.solve.depth_check); when they do not, everything here is learned from the pixels
     alone (measured(problem) gives that problem)."""
 
     declared: NoiseLevels
@@ -128,7 +129,7 @@ class LearnedNoise:
 
     def measured(self, problem: CalibrationProblem) -> CalibrationProblem:
         """The problem's measurements the learning used: without the depths when they disagreed
-        with the pixels (estimator.solve.depth_check), else all of them."""
+        with the pixels (hec.estimator.solve.depth_check), else all of them."""
         return problem if self.depth is None or self.depth.used else pixels_only(problem)
 
     def adjusted(self, problem: CalibrationProblem) -> CalibrationProblem:
@@ -162,7 +163,7 @@ class LearnedNoise:
 
 def prior_conflict(data_only: HandEyeState, data_covariance: np.ndarray, prior: Prior) -> float:
     """Squared Mahalanobis distance of the prior's mean from the data-only estimate of
-    T_flange_cam, with both covariances (6, 6) (estimator.geometry.lie convention)."""
+    T_flange_cam, with both covariances (6, 6) (hec.estimator.geometry.lie convention)."""
     e = pose_minus(prior.T_flange_cam, data_only.T_flange_cam)
     return float(e @ np.linalg.solve(data_covariance[:6, :6] + prior.covariance, e))
 
@@ -185,7 +186,7 @@ def _row_groups(
 def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
     """Iterated variance-component estimation (see the module doc). The state is the batch
     optimum's map model and depth-scale choice (options). With depths, learned twice, with them and
-    from the pixels alone: the pixels' result when the depths disagree (estimator.solve.depth_check)."""
+    from the pixels alone: the pixels' result when the depths disagree (hec.estimator.solve.depth_check)."""
     started = time.perf_counter()
     with one_blas_thread():
         learned = _learn_noise(problem, options)

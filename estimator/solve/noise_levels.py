@@ -1,5 +1,5 @@
 """Noise levels of a calibration problem and the problem scaled to them: the corner and depth
-whitening divided by their scales, the flange pose noise replaced (estimator.solve.noise_learning
+whitening divided by their scales, the flange pose noise replaced (hec.estimator.solve.noise_learning
 learns the levels)."""
 
 from __future__ import annotations
@@ -8,7 +8,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from estimator.solve.problem import CalibrationProblem, MarkerMeasurement, RobotPoseNoise
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.solve.problem import CalibrationProblem, MarkerMeasurement
 
 
 @dataclass(frozen=True)

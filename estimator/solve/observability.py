@@ -5,7 +5,7 @@ prior N(0, Sigma_r)), marginalising delta_i gives the state information
 J_s^T inv(I + J_f Sigma_r J_f^T) J_s. Summed over frames and reduced to
 T_flange_cam by the Schur complement over the board (or landmarks) and the depth
 scale, its inverse is the Cramer-Rao bound: the smallest covariance any unbiased
-estimator can reach from these views and this noise (estimator.geometry.lie convention).
+estimator can reach from these views and this noise (hec.estimator.geometry.lie convention).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 # 1-sigma above which a direction is reported as poorly determined / not observable.
 POOR_SIGMA_MM, POOR_SIGMA_DEG = 1.0, 0.1

@@ -3,7 +3,7 @@ frame because of the calibration's own uncertainty.
 
 The point is on the optical axis at the median distance of the board centre from the camera over
 the calibration's frames, p_cam = (0, 0, d). With the covariance C (6, 6) of the perturbation
-(dt, dtheta) of T_flange_cam (estimator.geometry.lie), its error in the flange frame is
+(dt, dtheta) of T_flange_cam (hec.estimator.geometry.lie), its error in the flange frame is
 e = dt - R_flange_cam skew(p_cam) dtheta, covariance J C J^T with J = [I, -R skew(p_cam)] (3, 6); the
 robot's rotation to the base frame keeps its length. RMS = sqrt(trace); the 95 % radius is that of
 sum(lambda_i z_i^2) (lambda the eigenvalues, z standard normal) by Satterthwaite's approximation
@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import skew
-from estimator.geometry.transforms import invert, transform_points
-from estimator.solve.problem import CalibrationProblem
+from hec.estimator.geometry.lie import skew
+from hec.estimator.geometry.transforms import invert, transform_points
+from hec.estimator.solve.problem import CalibrationProblem
 
 PICK_PROBABILITY = 0.95
 

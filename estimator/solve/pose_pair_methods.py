@@ -1,4 +1,4 @@
-"""Calibrating from pose pairs (estimator.observe.pose_pairs): a robot pose A_i = T_base_flange and
+"""Calibrating from pose pairs (hec.estimator.observe.pose_pairs): a robot pose A_i = T_base_flange and
 the board pose Z_i = T_cam_board another tool measured, without images.
 
 The OpenCV methods take the pairs as they are (cv2.calibrateHandEye: gripper2base = A_i,
@@ -7,7 +7,7 @@ X = T_flange_cam and the board B = T_base_board, fixed in the base frame; each p
 
     Z_i = P_i(X, B) = inv(X) inv(A_i) B,   r_i = pose_minus(Z_i, P_i)   (6,)
 
-in the perturbation convention of estimator.geometry.lie, with the covariance of Z_i (the pair's,
+in the perturbation convention of hec.estimator.geometry.lie, with the covariance of Z_i (the pair's,
 or learned) plus the reported flange pose's noise carried through. ``batch`` is the Gauss-Newton
 optimum over all pairs; ``ekf`` and ``iekf`` fuse the pairs one at a time (iekf iterating each
 update) from the Park solution with a wide prior. When the pairs carry no covariance (as
@@ -24,13 +24,14 @@ import time
 import cv2
 import numpy as np
 
-from estimator.geometry.lie import pose_minus, pose_plus, skew, so3_right_jacobian_inverse
-from estimator.geometry.transforms import invert, make_transform
-from estimator.observe.pose_pairs import PosePair
-from estimator.solve.baselines import OPENCV_METHODS, ROBOT_WORLD_METHODS
-from estimator.solve.calibration import Calibration, MethodOptions
-from estimator.solve.initialise import MIN_AXIS_SPREAD, mean_pose, rotation_spread
-from estimator.solve.problem import MIN_FRAMES, CalibrationInputError, RobotPoseNoise
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_minus, pose_plus, skew, so3_right_jacobian_inverse
+from hec.estimator.geometry.transforms import invert, make_transform
+from hec.estimator.observe.pose_pairs import PosePair
+from hec.estimator.solve.baselines import OPENCV_METHODS, ROBOT_WORLD_METHODS
+from hec.estimator.solve.calibration import Calibration, MethodOptions
+from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, mean_pose, rotation_spread
+from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError
 
 POSE_PAIR_MODEL_METHODS = ("ekf", "iekf", "batch")
 # A robot that reports its pose exactly (for pairs whose board poses carry all the noise).

@@ -6,7 +6,7 @@ With an exact calibration the prediction of frame i still misses by (to first or
   (problem.robot_noise) moving the predicted corners, J_flange Sigma_robot J_flange^T;
 - base frame: the flange pose's error moving the view's points, E|dp|^2 = 3 sigma_t^2 +
   2 sigma_r^2 |p_flange|^2 (translation per base axis, rotation about the flange axes,
-  estimator.geometry.lie), and the error of the view's PnP board pose from its corner pixels,
+  hec.estimator.geometry.lie), and the error of the view's PnP board pose from its corner pixels,
   Sigma_C = (J^T J)^-1 with J the whitened pixel Jacobian to the board pose.
 
 These are the floors a perfect calibration would show; the calibration's own error adds to them
@@ -19,10 +19,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from estimator.geometry.lie import skew_rows
-from estimator.geometry.transforms import transform_points
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements, MarkerMeasurement
+from hec.estimator.geometry.lie import skew_rows
+from hec.estimator.geometry.transforms import transform_points
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements, MarkerMeasurement
 
 
 def _pixel_information(m: MarkerMeasurement) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The calibration problem every method solves: validated, whitened measurements.
 
-Input is what the detector gives (estimator.observe.observations.FrameObservations): per
+Input is what the detector gives (hec.estimator.observe.observations.FrameObservations): per
 frame the reported flange pose T_base_flange and, per marker, its P points' pixels
 (P = board.points_per_marker: 4 corners of a QR code or tag, 1 chessboard corner)
 with their (2P, 2P) covariance and the depth at the points with its covariance.
@@ -12,7 +12,7 @@ whitened residuals W @ (measured - predicted), which are N(0, I) at the truth.
 
 The reported flange poses are measurements too (errors in variables): the true
 pose is pose_plus(reported, delta), delta ~ N(0, RobotPoseNoise.covariance()),
-in the convention of estimator.geometry.lie. Where the dataset names the arm and records its
+in the convention of hec.estimator.geometry.lie. Where the dataset names the arm and records its
 joints (ReportedArm), each frame keeps its joints and the problem the nominal kinematics the
 reported poses were computed with, so self-calibration can correct that model (its errors are the
 same from view to view, not white).
@@ -25,11 +25,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import ROBOTS, URKinematics
-from estimator.io.dataset import UR_JOINTS, Dataset, DatasetError
-from estimator.observe.observations import FrameObservations, MarkerObservation
-from estimator.targets.target import Target
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import ROBOTS, URKinematics
+from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError
+from hec.estimator.observe.observations import FrameObservations, MarkerObservation
+from hec.estimator.targets.target import Target
 
 MIN_FRAMES = 3
 # Eigenvalues below this fraction of the largest are the covariance's null space.
@@ -38,33 +39,6 @@ NULL_EIGENVALUE_FRACTION = 1e-9
 
 class CalibrationInputError(ValueError):
     """The observations cannot be calibrated from; the message names what is missing."""
-
-
-@dataclass(frozen=True)
-class RobotPoseNoise:
-    """Noise of the reported flange pose, in the convention of estimator.geometry.lie:
-    translation sigma per base axis (metres), rotation sigma per flange axis (radians)."""
-
-    translation_sigma_m: float = 1e-4
-    rotation_sigma_rad: float = float(np.radians(0.01))
-
-    def __post_init__(self) -> None:
-        if not (self.translation_sigma_m >= 0 and self.rotation_sigma_rad >= 0):
-            raise ValueError("robot pose noise sigmas must be >= 0")
-
-    def to_dict(self) -> dict:
-        return {
-            "translation_sigma_m": self.translation_sigma_m,
-            "rotation_sigma_rad": self.rotation_sigma_rad,
-        }
-
-    def covariance(self) -> np.ndarray:
-        """(6, 6) diagonal covariance of delta = (dt, dtheta)."""
-        return np.diag([self.translation_sigma_m**2] * 3 + [self.rotation_sigma_rad**2] * 3)
-
-    @property
-    def is_zero(self) -> bool:
-        return self.translation_sigma_m == 0.0 and self.rotation_sigma_rad == 0.0
 
 
 @dataclass(frozen=True)

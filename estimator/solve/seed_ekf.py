@@ -1,6 +1,6 @@
 """seed-ekf: the paper's EKF (camera pose and marker-centre landmarks in the base frame), made correct.
 
-State, in this order (perturbations in the convention of estimator.geometry.lie):
+State, in this order (perturbations in the convention of hec.estimator.geometry.lie):
 
     T_base_cam       camera pose of the current frame          (dt base frame, dtheta camera axes), 6
     delta_flange     error of the current reported flange pose (true F = pose_plus(reported F, delta)), 6
@@ -48,14 +48,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import pose_plus, pose_plus_jacobian, skew, skew_rows
-from estimator.geometry.transforms import invert, make_transform
-from estimator.observe.observations import FrameObservations
-from estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
-from estimator.solve.filters import GATE_PROBABILITY
-from estimator.solve.initialise import initial_state
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.problem import CalibrationInputError, CalibrationProblem
+from hec.estimator.geometry.lie import pose_plus, pose_plus_jacobian, skew, skew_rows
+from hec.estimator.geometry.transforms import invert, make_transform
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
+from hec.estimator.solve.filters import GATE_PROBABILITY
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
 INITIAL_SIGMA_M = 0.05
 INITIAL_SIGMA_RAD = float(np.radians(5.0))

@@ -46,12 +46,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.kinematics import URKinematics, forward
-from estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
-from estimator.solve.batch import BatchObjective, OutsideModel
-from estimator.solve.block_arrow import BlockLayout
-from estimator.solve.measurement_model import predict_frame
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.geometry.kinematics import URKinematics, forward
+from hec.estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
+from hec.estimator.solve.batch import BatchObjective, OutsideModel
+from hec.estimator.solve.block_arrow import BlockLayout
+from hec.estimator.solve.measurement_model import predict_frame
+from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 # The camera, board and depth corrections, in the order of predict_frame's J_camera columns.
 CAMERA_NUISANCE = (
@@ -250,7 +250,7 @@ def adjusted_problem(
 
 
 def kinematic_jacobian(kinematics: URKinematics, joints: np.ndarray) -> np.ndarray:
-    """(6, 24) d(the flange pose's correction, estimator.geometry.lie perturbation) / d(the
+    """(6, 24) d(the flange pose's correction, hec.estimator.geometry.lie perturbation) / d(the
     KINEMATIC_NUISANCE values) at the nominal model, by central differences."""
     T_nominal = forward(kinematics, joints)
     G = np.empty((6, len(KINEMATIC_NUISANCE)))
@@ -264,7 +264,7 @@ def kinematic_jacobian(kinematics: URKinematics, joints: np.ndarray) -> np.ndarr
 @dataclass
 class NuisanceUncertainty:
     """At a self-calibrated optimum: theta's covariance (p, p), the mount's (6, 6) and their
-    cross-covariance (6, p) (the mount in estimator.geometry.lie's local perturbation), and consider
+    cross-covariance (6, p) (the mount in hec.estimator.geometry.lie's local perturbation), and consider
     (6, 6): what the mount's covariance gains from theta being estimated (a method that solves the
     adjusted problem with theta fixed adds it)."""
 

@@ -9,9 +9,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import sparse
 
-from estimator.geometry.lie import so3_exp_rows
-from estimator.solve.measurement_model import HandEyeState, marker_points, predict_points, whitened_point_rows
-from estimator.solve.problem import CalibrationProblem
+from hec.estimator.geometry.lie import so3_exp_rows
+from hec.estimator.solve.measurement_model import (
+    HandEyeState,
+    marker_points,
+    predict_points,
+    whitened_point_rows,
+)
+from hec.estimator.solve.problem import CalibrationProblem
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """ukf: an error-state unscented Kalman filter over T_flange_cam and the board (or landmarks).
 
-The model, the start and the bookkeeping are those of estimator.solve.filters (ekf, iekf): the
+The model, the start and the bookkeeping are those of hec.estimator.solve.filters (ekf, iekf): the
 state is static; the first update takes the frames the closed form came from together (before
 they are all in, the mount is not determined), each later waypoint is one update with all of
 its markers; the error delta (6,) of each of an update's reported flange poses joins the state
@@ -94,8 +94,8 @@ import time
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
-from estimator.solve.calibration import Calibration, MethodOptions, calibration_from_state
-from estimator.solve.filters import (
+from hec.estimator.solve.calibration import Calibration, MethodOptions, calibration_from_state
+from hec.estimator.solve.filters import (
     IEKF_MAX_ITERATIONS,
     apply_prior,
     gate_threshold,
@@ -104,9 +104,9 @@ from estimator.solve.filters import (
     prior_first,
     update_groups,
 )
-from estimator.solve.initialise import initial_state
-from estimator.solve.measurement_model import HandEyeState, predict_frame
-from estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 # Sigma points at +-SPREAD standard deviations: n_a + lambda = SPREAD^2 (see the module doc).
 SPREAD = 1e-3
@@ -234,7 +234,7 @@ def ukf(problem: CalibrationProblem, options: MethodOptions) -> Calibration:
     """Unscented Kalman filter over all frames in order; starts where ekf and iekf start and,
     like them, takes the closed form's frames together in its first update, which it iterates (not
     when started from a prior).
-    Returns method 'ukf', T_flange_cam with its (6, 6) covariance (estimator.geometry.lie convention)."""
+    Returns method 'ukf', T_flange_cam with its (6, 6) covariance (hec.estimator.geometry.lie convention)."""
     start = time.perf_counter()
     start_point = initial_state(problem, options)
     state, source = start_point.state, start_point.source

@@ -2,7 +2,7 @@
 
 From the verification frames alone, with the board pose in the base frame free (a nuisance: the
 board may have been moved too) and every reported flange pose's error an unknown, the batch
-problem (estimator.solve.batch: the same measurement model, Gauss-Newton, Huber loss) estimates the
+problem (hec.estimator.solve.batch: the same measurement model, Gauss-Newton, Huber loss) estimates the
 mount, started at the calibration's. Its shift from the calibration is
 
     delta = pose_minus(T_flange_cam_verify, T_flange_cam_cal)     (6,): dt (m, flange axes), dtheta
@@ -24,17 +24,17 @@ from typing import TypeVar
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.geometry.lie import delta_size, pose_minus
-from estimator.io.calibration_file import LearnedNoiseLevels
-from estimator.solve.batch import BatchObjective, gauss_newton, one_blas_thread, state_covariance
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.depth_check import pixels_only
-from estimator.solve.filters import initial_covariance
-from estimator.solve.initialise import board_pose_pnp, mean_pose
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.noise_levels import NoiseLevels, scaled_problem
-from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
-from estimator.solve.self_calibration import adjusted_problem
+from hec.estimator.common.noise import LearnedNoiseLevels, RobotPoseNoise
+from hec.estimator.geometry.lie import delta_size, pose_minus
+from hec.estimator.solve.batch import BatchObjective, gauss_newton, one_blas_thread, state_covariance
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.depth_check import pixels_only
+from hec.estimator.solve.filters import initial_covariance
+from hec.estimator.solve.initialise import board_pose_pnp, mean_pose
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.noise_levels import NoiseLevels, scaled_problem
+from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.self_calibration import adjusted_problem
 
 SIGNIFICANCE = 0.01  # p below this: "moved"
 VERIFY_VIEWS = 5  # views of a verification session (hec run --verify)

@@ -1,13 +1,13 @@
 """View planning: candidate views of the board and the greedy choice of the next one by the
 information about T_flange_cam it adds.
 
-A candidate is a camera pose aimed at the board (estimator.geometry.waypoints.look_at_board: a
+A candidate is a camera pose aimed at the board (hec.estimator.geometry.waypoints.look_at_board: a
 distance, a tilt about an in-plane axis, a roll about the optical axis) turned into a flange pose
 through the nominal mount. It is kept when every marker lies inside the image with a margin
 (predicted with the nominal camera and board) and, given the arm's nominal kinematics, the flange
 pose is reachable within the joint limits (and, given one, inside the workspace box). Its
 information is what one exact frame of it adds to the batch state (mount, board pose), with the
-flange pose noise marginalised (estimator.solve.observability.frame_information).
+flange pose noise marginalised (hec.estimator.solve.observability.frame_information).
 
 Selection adds, one at a time, the candidate that most improves a criterion of the mount's
 information (the state's, the board pose eliminated by its Schur complement):
@@ -25,15 +25,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import URKinematics, solve_ik_nearest
-from estimator.geometry.transforms import invert
-from estimator.geometry.waypoints import NEAR, Waypoint, look_at_board
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.observability import frame_information
-from estimator.solve.problem import build_problem
-from estimator.targets.target import Target
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import URKinematics, solve_ik_nearest
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.geometry.waypoints import NEAR, Waypoint, look_at_board
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.observability import frame_information
+from hec.estimator.solve.problem import build_problem
+from hec.estimator.targets.target import Target
 
 CRITERIA = ("d-optimal", "worst-direction")
 # The prior that keeps the first views' criteria finite: 1 m and 1 rad, far wider than any view.
@@ -114,7 +114,7 @@ def view_informations(
 ) -> tuple[list[int], np.ndarray]:
     """The waypoints whose views hold every marker VIEW_MARGIN_PX inside the image (their indices
     into waypoints) and the (n, 12, 12) information each adds to the state (mount, board pose;
-    estimator.geometry.lie perturbations), from an exact frame with noise's covariances."""
+    hec.estimator.geometry.lie perturbations), from an exact frame with noise's covariances."""
     flanges = [w.T_base_flange for w in waypoints]
     observations = synthetic_observations(
         board,

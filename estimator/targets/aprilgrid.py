@@ -28,11 +28,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.qr_fit import TEMPLATE_QUIET_MODULES, MarkerFitError, fit_marker
-from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import (
+from hec.estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.qr_fit import TEMPLATE_QUIET_MODULES, MarkerFitError, fit_marker
+from hec.estimator.targets.sheet import CellBlock, draw_sheet
+from hec.estimator.targets.target import (
     BoardDefinitionError,
     integer_field,
     positive_field,

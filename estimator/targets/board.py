@@ -20,9 +20,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from estimator.targets.qr_symbol import ERROR_CORRECTION, SymbolSpec
-from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError
+from hec.estimator.targets.qr_symbol import ERROR_CORRECTION, SymbolSpec
+from hec.estimator.targets.sheet import CellBlock, draw_sheet
+from hec.estimator.targets.target import BoardDefinitionError
 
 # Corner offsets of an upright marker, in units of its side, board frame (x right, y up).
 _CORNER_OFFSETS = np.array([[-0.5, 0.5], [0.5, 0.5], [0.5, -0.5], [-0.5, -0.5]])

@@ -5,7 +5,7 @@ side, black border included), ``dictionary`` (an OpenCV predefined dictionary na
 "DICT_5X5_100"), the sheet's ``size_m``. The pattern is OpenCV's (cv2.aruco.CharucoBoard, not
 the legacy one): the top-left square black, marker IDs 0, 1, ... in the white squares row-major
 from the top-left. Grid, corner IDs (OpenCV's ChArUco corner IDs) and frames as
-estimator.targets.checker says.
+hec.estimator.targets.checker says.
 
 Detection: OpenCV's CharucoDetector finds the markers and, from them, the corners (partial views
 are fine: a corner counts once its neighbouring markers are found); each corner is then refined
@@ -21,11 +21,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.targets import checker
-from estimator.targets.detection import Detections
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError, positive_field, sheet_header
+from hec.estimator.targets import checker
+from hec.estimator.targets.detection import Detections
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.sheet import CellBlock, draw_sheet
+from hec.estimator.targets.target import BoardDefinitionError, positive_field, sheet_header
 
 # Error per coordinate image noise does not explain at a ChArUco corner, pixels: the RMS on
 # noise-free renders of the default trajectory (charuco_10x5: 17 views, 606 corners).

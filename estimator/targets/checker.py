@@ -22,11 +22,11 @@ import functools
 import cv2
 import numpy as np
 
-from estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.qr_fit import MarkerFitError, TemplateFrame, fit_template
-from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
+from hec.estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.qr_fit import MarkerFitError, TemplateFrame, fit_template
+from hec.estimator.targets.sheet import CellBlock, draw_sheet
+from hec.estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
 
 # Template pixels per square: the image's, clipped to this range (a template much coarser than the
 # image biases the fit, see qr_fit.fit_marker).

@@ -2,7 +2,7 @@
 
 Board file fields: ``squares_x``, ``squares_y`` (squares, not inner corners: OpenCV's pattern
 size is one less each), ``square_m`` and the sheet's ``size_m``; grid, corner IDs and frames as
-estimator.targets.checker says. One of squares_x, squares_y must be odd and the other even: only
+hec.estimator.targets.checker says. One of squares_x, squares_y must be odd and the other even: only
 then does a half-turn change the squares' colours, so the board's orientation can be read off
 the image (an odd-by-odd or even-by-even board looks the same turned, and its IDs would be a
 guess).
@@ -21,11 +21,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from estimator.targets import checker
-from estimator.targets.detection import Detections
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.sheet import CellBlock, draw_sheet
-from estimator.targets.target import BoardDefinitionError, sheet_header
+from hec.estimator.targets import checker
+from hec.estimator.targets.detection import Detections
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.sheet import CellBlock, draw_sheet
+from hec.estimator.targets.target import BoardDefinitionError, sheet_header
 
 # Error per coordinate image noise does not explain at a chessboard corner, pixels: the RMS on
 # noise-free renders of the default trajectory (chessboard_10x5: 17 views, 612 corners; 0.53 px with

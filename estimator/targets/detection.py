@@ -19,7 +19,7 @@ BLURRED_SHARPNESS = 20.0
 @dataclass(frozen=True)
 class MarkerDetection:
     """One board marker found in an image: a QR code or tag (P = 4 corners) or a single
-    chessboard corner (P = 1), see estimator.targets.target.
+    chessboard corner (P = 1), see hec.estimator.targets.target.
 
     corners_px: (P, 2) in the marker's order; corners_cov: (2P, 2P) over (u0, v0, ...),
     pixels^2. center_px: (2,) the marker centre (the point itself when P is 1); center_cov:

@@ -1,7 +1,7 @@
 """Board files of every target kind: reading, writing, and the detector each kind uses.
 
 A board file (JSON, format hec-board version 1) names its ``kind``; a file without one is a
-board of QR codes (estimator.targets.board), as every board file before the other kinds.
+board of QR codes (hec.estimator.targets.board), as every board file before the other kinds.
 """
 
 from __future__ import annotations
@@ -10,15 +10,15 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
-from estimator.io.models import models_dir
-from estimator.targets.aprilgrid import AprilGridBoard, AprilGridDetector
-from estimator.targets.board import BoardDefinition
-from estimator.targets.charuco import CharucoBoard, CharucoDetector
-from estimator.targets.chessboard import ChessboardBoard, ChessboardDetector
-from estimator.targets.qr import DetectorSettings, QRDetector
-from estimator.targets.target import BoardDefinitionError, Target, TargetDetector
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.common.models import models_dir
+from hec.estimator.targets.aprilgrid import AprilGridBoard, AprilGridDetector
+from hec.estimator.targets.board import BoardDefinition
+from hec.estimator.targets.charuco import CharucoBoard, CharucoDetector
+from hec.estimator.targets.chessboard import ChessboardBoard, ChessboardDetector
+from hec.estimator.targets.qr import DetectorSettings, QRDetector
+from hec.estimator.targets.target import BoardDefinitionError, Target, TargetDetector
 
 # kind -> (board from its file's dict and source name, detector of such a board)
 KINDS: dict[

@@ -5,7 +5,7 @@ upscaling, cheapest first), keeps the symbols whose payload names a marker of
 the board, puts their corners in the marker's own order (top-left, top-right,
 bottom-right, bottom-left of the upright symbol, whatever library found it and
 however it is rotated in the image), and refines them by aligning the known
-code (estimator.targets.qr_fit). Passes stop once every marker the board predicts
+code (hec.estimator.targets.qr_fit). Passes stop once every marker the board predicts
 inside the image has been decoded. Everything not turned into a marker is
 returned as a Rejection with its reason: foreign codes, markers seen twice,
 fits that failed, and markers the board predicts in view that nobody decoded.
@@ -25,10 +25,10 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from estimator.targets.board import BoardDefinition
-from estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
-from estimator.targets.qr_decode import BACKENDS, DecodedSymbol, decode_qr
-from estimator.targets.qr_fit import (
+from hec.estimator.targets.board import BoardDefinition
+from hec.estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
+from hec.estimator.targets.qr_decode import BACKENDS, DecodedSymbol, decode_qr
+from hec.estimator.targets.qr_fit import (
     DEFAULT_CENTER_FLOOR_PX,
     DEFAULT_CORNER_FLOOR_PX,
     MarkerFitError,
@@ -39,7 +39,7 @@ from estimator.targets.qr_fit import (
     orient_corners,
     sample_modules,
 )
-from estimator.targets.qr_symbol import SymbolSpec, read_format
+from hec.estimator.targets.qr_symbol import SymbolSpec, read_format
 
 DEFAULT_PASSES = ("zxing@1", "zxing@2", "pyzbar@1", "pyzbar@2")
 # Data-module agreement of two unrelated bit streams is about 0.5; up to this, the data differ.
@@ -53,9 +53,9 @@ class DetectorSettings:
     """passes: "backend@scale" decoding passes in order (back-ends: zxing, pyzbar, opencv).
     stop_when_complete: skip later passes once every marker predicted in view is decoded.
     corner_floor_px, center_floor_px: pixel error image noise does not explain (see
-    estimator.targets.qr_fit). learn_corner_floor: a dataset's observations get the floors
+    hec.estimator.targets.qr_fit). learn_corner_floor: a dataset's observations get the floors
     its markers' consistency shows instead, these constants as the least
-    (estimator.observe.corner_noise; the detector itself always uses the constants).
+    (hec.estimator.observe.corner_noise; the detector itself always uses the constants).
     Markers whose modules or aligned code match worse than min_module_agreement or
     min_correlation are rejected. follow_printed_symbol: a marker
     printed with another version, error correction or mask than its definition is compared

@@ -5,8 +5,8 @@ Back-ends: ``zxing`` (zxing-cpp, the default and the fastest), ``pyzbar``
 Each can run on the image upscaled by an integer factor, which helps small
 codes. Corners come back in the library's own order (zxing: the symbol's
 top-left, top-right, bottom-right, bottom-left; pyzbar: any start and either
-winding); estimator.targets.qr_fit puts them in the marker's order. Pixel
-coordinates follow estimator.geometry.camera (origin at the centre of the top-left
+winding); hec.estimator.targets.qr_fit puts them in the marker's order. Pixel
+coordinates follow hec.estimator.geometry.camera (origin at the centre of the top-left
 pixel). zxing also reports the symbol's version, error-correction level and mask
 (the others do not: those fields stay None).
 """

@@ -41,7 +41,7 @@ QUANTISATION_SIGMA = 1.0 / np.sqrt(12.0)
 # corner coordinate, 0.0036 px at the centre: the renderer's texture sampling mostly
 # changes a marker's apparent size, which cancels at its centre). A real cell adds more;
 # a dataset's observations get the floor their markers' agreement shows
-# (estimator.observe.corner_noise), these as the least.
+# (hec.estimator.observe.corner_noise), these as the least.
 DEFAULT_CORNER_FLOOR_PX = 0.013
 DEFAULT_CENTER_FLOOR_PX = 0.0036
 # Gaussian kernel size (pixels) both images are smoothed with before alignment.

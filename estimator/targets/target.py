@@ -16,7 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
-from estimator.targets.detection import Detections
+from hec.estimator.targets.detection import Detections
 
 
 class BoardDefinitionError(ValueError):
@@ -103,7 +103,7 @@ class Target(Protocol):
     @property
     def corners_homography_fitted(self) -> bool:
         """Whether each marker's corners come from one homography fitted over the whole marker,
-        so that lens distortion biases them (estimator.geometry.marker_fit_bias)."""
+        so that lens distortion biases them (hec.estimator.geometry.marker_fit_bias)."""
         ...
 
     @property

@@ -1,1 +1,1 @@
-"""Benchmarks: rendering, detection and estimator speed and accuracy (`python -m experiments.bench.NAME`)."""
+"""Benchmarks: rendering, detection and estimator speed and accuracy (`python -m hec.bench.NAME`)."""

@@ -1,4 +1,4 @@
-"""Benchmark of the corner noise floor learned from the data (estimator.observe.corner_noise).
+"""Benchmark of the corner noise floor learned from the data (hec.estimator.observe.corner_noise).
 
 Renders the default (ideal) and the realistic cell (models/scenarios/realistic.toml: lens and
 intrinsics undeclared, blur, lighting, a bent print with shifted markers) on the rotation-rich
@@ -9,7 +9,7 @@ with the lens and the print fitted (what the learned floor uses); the floor the 
 then use; and the normalised errors (e^T C^-1 e / 2 per point, 1 = honest) of the corners
 and the centres with the constant floor and with the learned one.
 
-    .venv/bin/python -m experiments.bench.corner_noise [--seeds 0 1 2 3]
+    .venv/bin/python -m hec.bench.corner_noise [--seeds 0 1 2 3]
 """
 
 from __future__ import annotations
@@ -20,15 +20,16 @@ from pathlib import Path
 
 import numpy as np
 
-import sim  # noqa: F401  (selects the GL backend before mujoco loads)
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.io.models import models_dir
-from estimator.observe.corner_noise import fit_board_views, learn_corner_floor, measured_noise
-from estimator.observe.grading import grade_observations
-from estimator.observe.observations import FrameObservations, observe_dataset
-from estimator.targets.qr import DetectorSettings
-from sim.scenario import load_scenario
-from sim.simulate import simulate
+import hec.sim as sim  # noqa: F401  (selects the GL backend before mujoco loads)
+from hec.estimator.common.models import models_dir
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.corner_noise import fit_board_views, learn_corner_floor, measured_noise
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.grading import grade_observations
+from hec.estimator.observe.observations import FrameObservations, observe_dataset
+from hec.estimator.targets.qr import DetectorSettings
+from hec.sim.scenario import load_scenario
+from hec.sim.simulate import simulate
 
 CELLS = {"default": None, "realistic": models_dir() / "scenarios" / "realistic.toml"}
 # The agreement models compared, as in HEADER: (fit the lens, fit the print).

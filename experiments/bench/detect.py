@@ -4,9 +4,9 @@ Reports, per decoding pass alone and for the detector's combined passes: the
 share of fully visible markers decoded with the right ID; raw and refined
 corner error against ground truth; normalised errors; detection-plus-refinement
 time per 640x480 frame; and the error floors on noise-free renders that
-estimator.targets.qr_fit's DEFAULT_*_FLOOR_PX hold.
+hec.estimator.targets.qr_fit's DEFAULT_*_FLOOR_PX hold.
 
-    .venv/bin/python -m experiments.bench.detect [--seed N]
+    .venv/bin/python -m hec.bench.detect [--seed N]
 """
 
 from __future__ import annotations
@@ -18,17 +18,18 @@ from pathlib import Path
 
 import numpy as np
 
-import sim  # noqa: F401  (selects the GL backend before mujoco loads)
-from estimator.geometry.camera import project_points
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.observe.grading import grade_observations, true_T_cam_board
-from estimator.observe.observations import dataset_depth_noise, observe_frame
-from estimator.targets.detection import to_gray
-from estimator.targets.kinds import detector_for
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.qr_decode import decode_qr
-from sim.scenario import load_scenario, scenario_from_dict
-from sim.simulate import simulate
+import hec.sim as sim  # noqa: F401  (selects the GL backend before mujoco loads)
+from hec.estimator.geometry.camera import project_points
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.grading import grade_observations, true_T_cam_board
+from hec.estimator.observe.observations import dataset_depth_noise, observe_frame
+from hec.estimator.targets.detection import to_gray
+from hec.estimator.targets.kinds import detector_for
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.qr_decode import decode_qr
+from hec.sim.scenario import load_scenario, scenario_from_dict
+from hec.sim.simulate import simulate
 
 SINGLE_PASSES = ("zxing@1", "zxing@2", "pyzbar@1", "pyzbar@2", "opencv@1", "opencv@2")
 

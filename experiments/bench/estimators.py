@@ -1,6 +1,6 @@
 """Monte-Carlo of every estimator at measurement level against the Cramer-Rao bound, and run times.
 
-Each trial draws a random mount (experiments.synthetic_scenes.random_mount), the
+Each trial draws a random mount (hec.support.synthetic_scenes.random_mount), the
 default views and board, and synthetic observations with the default noise
 (0.3 px corners, stereo depth noise, 0.1 mm / 0.01 degree robot pose noise). Three cases:
 
@@ -13,7 +13,7 @@ mean trace of the CRB over trials), mean NEES against the 95 % chi-square band f
 the mean of that many 6-dof values, failures. Then the time per method for 15
 waypoints x 8 markers.
 
-    .venv/bin/python -m experiments.bench.estimators [--trials 200] [--seed 0] [--workers 2] [--plot F.png]
+    .venv/bin/python -m hec.bench.estimators [--trials 200] [--seed 0] [--workers 2] [--plot F.png]
 """
 
 from __future__ import annotations
@@ -34,16 +34,17 @@ import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from estimator.geometry.lie import pose_minus  # noqa: E402
-from estimator.observe.synthetic import SyntheticNoise  # noqa: E402
-from estimator.solve.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS  # noqa: E402
-from estimator.solve.calibration import MethodOptions  # noqa: E402
-from estimator.solve.measurement_model import HandEyeState  # noqa: E402
-from estimator.solve.methods import METHODS, run_method  # noqa: E402
-from estimator.solve.observability import observability  # noqa: E402
-from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem  # noqa: E402
-from experiments.calibrate.report import check_json_path, write_json  # noqa: E402
-from experiments.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene  # noqa: E402
+from hec.calibration.report import check_json_path, write_json  # noqa: E402
+from hec.estimator.common.noise import RobotPoseNoise  # noqa: E402
+from hec.estimator.geometry.lie import pose_minus  # noqa: E402
+from hec.estimator.observe.synthetic import SyntheticNoise  # noqa: E402
+from hec.estimator.solve.baselines import JOINT_LINEAR_METHODS, OPENCV_METHODS  # noqa: E402
+from hec.estimator.solve.calibration import MethodOptions  # noqa: E402
+from hec.estimator.solve.measurement_model import HandEyeState  # noqa: E402
+from hec.estimator.solve.methods import METHODS, run_method  # noqa: E402
+from hec.estimator.solve.observability import observability  # noqa: E402
+from hec.estimator.solve.problem import CalibrationInputError, build_problem  # noqa: E402
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene  # noqa: E402
 
 EXACT_POSES = RobotPoseNoise(0.0, 0.0)
 MODEL_METHODS = ("ekf", "iekf", "ukf", "batch")
@@ -58,7 +59,7 @@ PARK_VIEWS = 17
 
 
 def run_trial(case: str, seed: int, trial: int) -> dict:
-    """One trial of one case: per method the error (6,) in the estimator.geometry.lie convention, NEES,
+    """One trial of one case: per method the error (6,) in the hec.estimator.geometry.lie convention, NEES,
     time, or the error message; and the CRB's diagonal (6,) at the truth."""
     noise, model_robot, methods = CASES[case]
     rng = np.random.default_rng([seed, trial])

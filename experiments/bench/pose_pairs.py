@@ -8,7 +8,7 @@ the median and worst translation and rotation error of T_flange_cam and hec's me
 its covariance is honest), and whether hec's batch is at least as accurate as the best OpenCV
 method (median translation).
 
-    .venv/bin/python -m experiments.bench.pose_pairs [--seeds 5] [--scenario realistic]
+    .venv/bin/python -m hec.bench.pose_pairs [--seeds 5] [--scenario realistic]
 """
 
 from __future__ import annotations
@@ -20,20 +20,20 @@ import math
 
 import numpy as np
 
-import sim  # noqa: F401  (selects the GL backend before mujoco loads)
-from estimator.geometry.lie import pose_nees
-from estimator.geometry.transforms import pose_error
-from estimator.io.dataset import Dataset
-from estimator.observe.pose_pairs import PosePair
-from estimator.solve.baselines import OPENCV_METHODS
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.initialise import board_pose_pnp
-from estimator.solve.pose_pair_methods import POSE_PAIR_MODEL_METHODS, solve_pose_pairs
-from estimator.solve.problem import build_problem, dataset_robot_noise
-from estimator.targets.qr import DetectorSettings
-from experiments.detection import detect_dataset
-from sim.scenario import load_scenario
-from sim.simulate import simulate_in_memory
+import hec.sim as sim  # noqa: F401  (selects the GL backend before mujoco loads)
+from hec.estimator.geometry.lie import pose_nees
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.pose_pairs import PosePair
+from hec.estimator.solve.baselines import OPENCV_METHODS
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.initialise import board_pose_pnp
+from hec.estimator.solve.pose_pair_methods import POSE_PAIR_MODEL_METHODS, solve_pose_pairs
+from hec.estimator.solve.problem import build_problem, dataset_robot_noise
+from hec.estimator.targets.qr import DetectorSettings
+from hec.sim.scenario import load_scenario
+from hec.sim.simulate import simulate_in_memory
+from hec.support.detection import detect_dataset
 
 METHODS = (*POSE_PAIR_MODEL_METHODS, *OPENCV_METHODS)
 

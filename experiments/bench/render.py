@@ -1,7 +1,7 @@
 """Benchmark: time to simulate one waypoint at 640x480, the default (ideal) scenario beside the realistic
 one (models/scenarios/realistic.toml, every model error on).
 
-Run: .venv/bin/python -m experiments.bench.render [--rounds N]
+Run: .venv/bin/python -m hec.bench.render [--rounds N]
 Prints the median and 90th percentile per part over the default trajectory for each scenario: IK +
 checks, the RGB + depth render, the real camera (lens, depth misregistration, flying pixels, holes,
 image effects; nothing for the ideal cell) and the sensor noise; then realistic / default per part
@@ -17,14 +17,14 @@ import time
 
 import numpy as np
 
-import sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
-from estimator.geometry.transforms import invert
-from estimator.geometry.waypoints import WaypointRejected
-from estimator.io.models import models_dir
-from sim.cell import SimCell
-from sim.noise import apply_depth_models, apply_rgb_models
-from sim.scenario import Scenario, load_scenario
-from sim.simulate import scenario_waypoints
+import hec.sim as sim  # noqa: F401  (chooses the GL backend before mujoco is imported)
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.geometry.waypoints import WaypointRejected
+from hec.sim.cell import SimCell
+from hec.sim.noise import apply_depth_models, apply_rgb_models
+from hec.sim.scenario import Scenario, load_scenario
+from hec.sim.simulate import scenario_waypoints
 
 PARTS = ("ik+checks", "render", "real camera", "noise", "total")
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}

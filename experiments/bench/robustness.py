@@ -2,10 +2,10 @@
 the truth and the OpenCV baselines on the same data.
 
 Each case declares one noise model to the estimators and gives the data another (or the ideal
-cell, where the two agree). Measurement fidelity builds on experiments.synthetic_scenes (a random
+cell, where the two agree). Measurement fidelity builds on hec.support.synthetic_scenes (a random
 mount per trial, the default 17 views, 0.3 px corners, stereo depth noise, 0.1 mm / 0.01 deg
 robot noise declared); render fidelity renders every trial with MuJoCo into a temporary dataset
-and detects the board, as the render sweeps do (experiments.sweep.trials).
+and detects the board, as the render sweeps do (hec.sweep.trials).
 
     ideal                 declared = actual (the default scenario)
     depth bias S + O      depth measured as (1 + S) z + O; the estimators assume none
@@ -18,7 +18,7 @@ and detects the board, as the render sweeps do (experiments.sweep.trials).
 Per case and method over the trials: median and 95th-percentile translation (mm) and rotation
 (deg) error, mean NEES (methods with a covariance), the fraction of runs that warned, the mean
 fraction of observations rejected and the failures. Then the acceptance lines of the default
-method (estimator.solve.methods.DEFAULT_METHOD) against the best OpenCV method (the lowest median
+method (hec.estimator.solve.methods.DEFAULT_METHOD) against the best OpenCV method (the lowest median
 among those that succeeded in at least half the trials, per quantity), and the Cramer-Rao bound
 at the truth under the actual noise: the median root-sum-square of its 1-sigmas and the median error
 an efficient unbiased estimator would have (comparable to a method's median; a model bias such as a
@@ -29,7 +29,7 @@ Trial t of case c draws everything from numpy.random.default_rng([seed, c, t]), 
 index in CASES (the same in every run), as the sweeps do; a render trial whose random mount hides
 the board from every view is drawn again (RENDER_REDRAWS).
 
-    .venv/bin/python -m experiments.bench.robustness [--trials 50] [--render-trials 20] [--seed 0]
+    .venv/bin/python -m hec.bench.robustness [--trials 50] [--render-trials 20] [--seed 0]
         [--fidelity measurements|render|both] [--cases WORD,...] [--workers 2] [--json OUT]
         [--plot OUT.png]
 """
@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import os
 
-# One BLAS thread per process: the trials run in parallel processes (see experiments.bench.estimators).
+# One BLAS thread per process: the trials run in parallel processes (see hec.bench.estimators).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
@@ -53,25 +53,26 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from estimator.geometry.lie import pose_nees  # noqa: E402
-from estimator.geometry.transforms import pose_error  # noqa: E402
-from estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
-from estimator.observe.observations import camera_points  # noqa: E402
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
-from estimator.solve.baselines import OPENCV_METHODS  # noqa: E402
-from estimator.solve.calibration import MethodOptions  # noqa: E402
-from estimator.solve.measurement_model import HandEyeState  # noqa: E402
-from estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method  # noqa: E402
-from estimator.solve.noise_learning import learn_noise  # noqa: E402
-from estimator.solve.observability import observability  # noqa: E402
-from estimator.solve.problem import CalibrationInputError, RobotPoseNoise, build_problem  # noqa: E402
-from estimator.targets.board import BoardDefinition  # noqa: E402
-from experiments.bench.robustness_plot import plot  # noqa: E402
-from experiments.calibrate.report import check_json_path, write_json  # noqa: E402
-from experiments.sweep.parameters import MEASUREMENTS, RENDER  # noqa: E402
-from experiments.sweep.rows import SweepError  # noqa: E402
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene  # noqa: E402
-from sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.bench.robustness_plot import plot  # noqa: E402
+from hec.calibration.report import check_json_path, write_json  # noqa: E402
+from hec.estimator.common.noise import RobotPoseNoise  # noqa: E402
+from hec.estimator.geometry.lie import pose_nees  # noqa: E402
+from hec.estimator.geometry.transforms import pose_error  # noqa: E402
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
+from hec.estimator.observe.observations import camera_points  # noqa: E402
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
+from hec.estimator.solve.baselines import OPENCV_METHODS  # noqa: E402
+from hec.estimator.solve.calibration import MethodOptions  # noqa: E402
+from hec.estimator.solve.measurement_model import HandEyeState  # noqa: E402
+from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method  # noqa: E402
+from hec.estimator.solve.noise_learning import learn_noise  # noqa: E402
+from hec.estimator.solve.observability import observability  # noqa: E402
+from hec.estimator.solve.problem import CalibrationInputError, build_problem  # noqa: E402
+from hec.estimator.targets.board import BoardDefinition  # noqa: E402
+from hec.sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene  # noqa: E402
+from hec.sweep.parameters import MEASUREMENTS, RENDER  # noqa: E402
+from hec.sweep.rows import SweepError  # noqa: E402
 
 DECLARED = SyntheticNoise()  # what the estimators are told at measurement fidelity
 TARGET_RATIO = 0.8  # the default's median error must be at most this times the best OpenCV's
@@ -166,7 +167,7 @@ def _declare_corner_sigma(observations: list, sigma_px: float) -> list:
 def measurement_inputs(case: Case, rng: np.random.Generator) -> tuple:
     """(observations, problem the estimators get, problem with the actual noise (for the bound),
     true T_flange_cam, T_base_board) of one measurement trial."""
-    from experiments.sweep.trials import _with_depth_bias
+    from hec.sweep.trials import _with_depth_bias
 
     X = random_mount(rng)
     robot = DECLARED.robot
@@ -219,8 +220,8 @@ def render_scenario(case: Case) -> Scenario:
 def render_inputs(case: Case, rng: np.random.Generator, seed: int, trial: int) -> tuple:
     """As measurement_inputs, for a trial rendered and detected (a random
     mount and the scenario's views, as a render sweep's trial)."""
-    from experiments.sweep.trials import TrialTask
-    from experiments.sweep.trials import render_inputs as render_trial_inputs
+    from hec.sweep.trials import TrialTask
+    from hec.sweep.trials import render_inputs as render_trial_inputs
 
     scenario = render_scenario(case)
     parameters = {"mount": "random", "trajectory": "rotation-rich", "waypoints": None}

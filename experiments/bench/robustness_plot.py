@@ -1,4 +1,4 @@
-"""The robustness benchmark's picture (experiments.bench.robustness --plot): per case the median
+"""The robustness benchmark's picture (hec.bench.robustness --plot): per case the median
 errors of every method with the best OpenCV method, the target and the bound, and the default
 method's mean NEES against its band."""
 
@@ -8,8 +8,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from estimator.solve.baselines import OPENCV_METHODS
-from estimator.solve.methods import DEFAULT_METHOD, METHODS
+from hec.estimator.solve.baselines import OPENCV_METHODS
+from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
 
 
 def plot(

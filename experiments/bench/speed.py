@@ -1,14 +1,14 @@
 """Benchmark: the Monte-Carlo speed ratios, each measured side by side in one run (absolute times on
 a shared 2-core machine vary from run to run; the ratios much less).
 
-Run: .venv/bin/python -m experiments.bench.speed [--rounds 3] [--dask-trials 10000]
+Run: .venv/bin/python -m hec.bench.speed [--rounds 3] [--dask-trials 10000]
 Prints, with its parts and its goal:
   waypoint      a whole simulated waypoint / MuJoCo's render of it, default and realistic scenario,
-                in wall time and in CPU time (experiments.bench.render)
+                in wall time and in CPU time (hec.bench.render)
   render trial  a render-fidelity sweep trial (17 views, ekf and Park) / simulating and detecting
-                its views in memory (experiments.sweep.trials.render_inputs)
+                its views in memory (hec.sweep.trials.render_inputs)
   estimators    ekf / OpenCV's Park with its PnP poses; batch in ms (17 views x 8 markers,
-                experiments.bench.estimators.time_against_park)
+                hec.bench.estimators.time_against_park)
   workers       sweep trials per second on 2 worker processes / on 1 at both fidelities, the two
                 pools taking turns (see worker_speedup), beside the same ratio for a CPU-bound
                 pure-Python loop on the same pools (the machine's own ceiling: its two cores are
@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from experiments.sweep.config import SweepConfig, cell_scenario, load_config
-from experiments.sweep.parameters import MEASUREMENTS, RENDER
-from experiments.sweep.trials import render_inputs, run_trial, tasks_for
+from hec.sweep.config import SweepConfig, cell_scenario, load_config
+from hec.sweep.parameters import MEASUREMENTS, RENDER
+from hec.sweep.trials import render_inputs, run_trial, tasks_for
 
 TRIAL_METHODS = '["ekf", "opencv-park"]'
 BUSY_LOOP_ITERATIONS, BUSY_LOOPS_PER_TURN = 3_000_000, 6
@@ -121,7 +121,7 @@ def worker_speedup(folder: Path, fidelity: str, trials: int, seed: int) -> dict[
     trials / WORKER_ROUNDS trials on 1 worker and each of them twice on 2, then BUSY_LOOPS_PER_TURN
     busy loops per worker. Rates are busy_rate's; each ratio is the 2-worker pool's mean rate over the turns
     over the 1-worker pool's."""
-    from experiments.sweep.runner import local_pool
+    from hec.sweep.runner import local_pool
 
     tasks = tasks_for(sweep_config(folder, fidelity, trials, seed))
     per_turn = -(-trials // WORKER_ROUNDS)
@@ -159,8 +159,8 @@ def dask_memory(folder: Path, trials: int, seed: int, every_s: float = 5.0) -> l
     import psutil
     from distributed import Client, LocalCluster
 
-    from experiments.sweep.rows import ROWS_FILE
-    from experiments.sweep.runner import run_sweep
+    from hec.sweep.rows import ROWS_FILE
+    from hec.sweep.runner import run_sweep
 
     config = sweep_config(folder, MEASUREMENTS, trials, seed, methods='["opencv-park"]')
     rows_file, readings = folder / "dask" / ROWS_FILE, []
@@ -199,7 +199,7 @@ def _line(name: str, ratio: float, parts: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from experiments.bench.render import waypoint_times
+    from hec.bench.render import waypoint_times
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3, help="repetitions of each timing (median)")
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _print_trials_and_workers(folder: Path, args: argparse.Namespace) -> None:
-    from experiments.bench.estimators import time_against_park
+    from hec.bench.estimators import time_against_park
 
     trial = trial_times(folder, args.rounds, args.seed)
     _line(

@@ -7,7 +7,7 @@ detection time per frame (including the depth fit), and per method the median an
 translation and rotation error of T_flange_cam over the seeds with its mean pose NEES (6 when the
 reported covariance is honest).
 
-    .venv/bin/python -m experiments.bench.targets [--seeds 3] [--boards NAME,...] [--scenario realistic]
+    .venv/bin/python -m hec.bench.targets [--seeds 3] [--boards NAME,...] [--scenario realistic]
     (default: every board in models/boards/, the ideal default cell)
 
 With --scenario, the cell's model errors apply to every board; a board printed as one pattern
@@ -26,20 +26,20 @@ from pathlib import Path
 
 import numpy as np
 
-import sim  # noqa: F401  (selects the GL backend before mujoco loads)
-from estimator.geometry.lie import pose_nees
-from estimator.geometry.transforms import pose_error
-from estimator.io.models import models_dir
-from estimator.io.tomlfile import read_toml
-from estimator.observe.grading import grade_observations
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.methods import solve
-from estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
-from estimator.targets.kinds import find_board
-from estimator.targets.qr import DetectorSettings
-from experiments.detection import detect_dataset
-from sim.scenario import Scenario, ScenarioError, resolve_scenario_path, scenario_from_dict
-from sim.simulate import simulate_in_memory
+import hec.sim as sim  # noqa: F401  (selects the GL backend before mujoco loads)
+from hec.estimator.common.models import models_dir
+from hec.estimator.geometry.lie import pose_nees
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.io.tomlfile import read_toml
+from hec.estimator.observe.grading import grade_observations
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import solve
+from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+from hec.estimator.targets.kinds import find_board
+from hec.estimator.targets.qr import DetectorSettings
+from hec.sim.scenario import Scenario, ScenarioError, resolve_scenario_path, scenario_from_dict
+from hec.sim.simulate import simulate_in_memory
+from hec.support.detection import detect_dataset
 
 BOARDS = tuple(sorted(p.stem for p in (models_dir() / "boards").glob("*.json")))
 METHODS = ("ekf", "batch", "opencv-park", "opencv-daniilidis")
@@ -61,7 +61,7 @@ def board_scenario(board: str, scenario: str | None = None) -> Scenario:
 def board_trial(board: str, seed: int, scenario: str | None = None) -> dict:
     """Render the scenario (board_scenario) with this board, detect, grade and calibrate: the
     measurement summary (grading.MeasurementErrors.summary), ms_per_frame, frames, corner_noise (the
-    learned floor, estimator.observe.corner_noise.CornerNoise), and per method its
+    learned floor, hec.estimator.observe.corner_noise.CornerNoise), and per method its
     (translation mm, rotation deg, pose NEES) or the failure's message."""
     scenario = board_scenario(board, scenario)
     with contextlib.redirect_stderr(io.StringIO()):

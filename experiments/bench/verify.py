@@ -1,22 +1,22 @@
 """Verification benchmark: how often `hec verify` says "moved" when the mount moved between calibration
 and verification, and when it did not (the false alarm rate).
 
-Per seed, at measurement fidelity (experiments.synthetic_scenes: a random mount, the default 17
+Per seed, at measurement fidelity (hec.support.synthetic_scenes: a random mount, the default 17
 views, 0.3 px corners, stereo depth noise, 0.1 mm / 0.01 deg robot noise): calibrate with the
 default method (learning the noise), then record VERIFY_VIEWS views spread over the same
 trajectory (planned with the mount as calibrated, as a real cell would) with new noise, once with
 the mount as it was and once moved by --shift-mm along a random direction and --shift-deg about a
-random axis, and test each (estimator.solve.verify). Seed s draws from default_rng([s, 0]).
+random axis, and test each (hec.estimator.solve.verify). Seed s draws from default_rng([s, 0]).
 
 At render fidelity (--fidelity render) each seed renders the --scenario's cell (default or
 realistic) with a random mount at the rotation-rich views into a temporary dataset and detects it,
-as a render sweep's trial does (experiments.sweep.trials.render_views); the verification views are
+as a render sweep's trial does (hec.sweep.trials.render_views); the verification views are
 rendered in the same cell (the same seed for its model errors: the arm's true kinematics, the
 lens, the printed board are the cell's), with new noise in every frame (another noise seed), at
 VERIFY_VIEWS of the views the calibration used. Seed s draws from default_rng([s, 1, k]), k the
 redraw (a random mount that hides the board is drawn again, up to RENDER_REDRAWS times).
 
-    .venv/bin/python -m experiments.bench.verify [--fidelity measurement|render]
+    .venv/bin/python -m hec.bench.verify [--fidelity measurement|render]
         [--scenario default|realistic] [--seeds N] [--shift-mm 1] [--shift-deg 0.2]
         [--corner-factor 1] [--workers 2] [--json OUT]
 
@@ -42,35 +42,36 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from estimator.geometry.lie import pose_nees, pose_plus  # noqa: E402
-from estimator.geometry.transforms import pose_error  # noqa: E402
-from estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
-from estimator.io.calibration_file import LearnedNoiseLevels, learned_noise_levels  # noqa: E402
-from estimator.io.dataset import Dataset  # noqa: E402
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
-from estimator.solve.calibration import Calibration, MethodOptions  # noqa: E402
-from estimator.solve.methods import DEFAULT_METHOD, run_method  # noqa: E402
-from estimator.solve.noise_learning import LearnedNoise, learn_noise  # noqa: E402
-from estimator.solve.problem import (  # noqa: E402
+from hec.bench.robustness import RENDER_REDRAWS, _declare_corner_sigma  # noqa: E402
+from hec.calibration.report import check_json_path, write_json  # noqa: E402
+from hec.estimator.common.noise import LearnedNoiseLevels  # noqa: E402
+from hec.estimator.geometry.lie import pose_nees, pose_plus  # noqa: E402
+from hec.estimator.geometry.transforms import pose_error  # noqa: E402
+from hec.estimator.geometry.waypoints import rotation_rich_waypoints  # noqa: E402
+from hec.estimator.io.calibration_file import learned_noise_levels  # noqa: E402
+from hec.estimator.observe.frames import Dataset  # noqa: E402
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
+from hec.estimator.solve.calibration import Calibration, MethodOptions  # noqa: E402
+from hec.estimator.solve.methods import DEFAULT_METHOD, run_method  # noqa: E402
+from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise  # noqa: E402
+from hec.estimator.solve.problem import (
     CalibrationInputError,
     CalibrationProblem,
     build_problem,
     dataset_arm,
     dataset_robot_noise,
 )
-from estimator.solve.verify import (  # noqa: E402
+from hec.estimator.solve.verify import (
     VERIFY_VIEWS,
     Verification,
     spread_views,
     verification_problem,
     verify_mount,
 )
-from experiments.bench.robustness import RENDER_REDRAWS, _declare_corner_sigma  # noqa: E402
-from experiments.calibrate.report import check_json_path, write_json  # noqa: E402
-from experiments.sweep.rows import SweepError  # noqa: E402
-from experiments.sweep.trials import render_views  # noqa: E402
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount  # noqa: E402
-from sim.scenario import Scenario, load_scenario  # noqa: E402
+from hec.sim.scenario import Scenario, load_scenario  # noqa: E402
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount  # noqa: E402
+from hec.sweep.rows import SweepError  # noqa: E402
+from hec.sweep.trials import render_views  # noqa: E402
 
 DETECTION_TARGET = 0.95
 FALSE_ALARM_TARGET = 0.05
@@ -82,7 +83,7 @@ DEFAULT_SEEDS = {"measurement": 100, "render": 30}
 
 def learned_levels(learned: LearnedNoise) -> LearnedNoiseLevels:
     """What a calibration file records of the learned noise, read as `hec verify` reads it
-    (estimator.io.calibration_file)."""
+    (hec.estimator.io.calibration_file)."""
     return learned_noise_levels(learned.to_dict(), Path("<learned noise>"))
 
 
@@ -183,7 +184,7 @@ class RenderedCalibration:
     """A seed's rendered and calibrated cell. rng: the seed's generator, after the draws so far;
     T_flange_cam_true: (4, 4) the true mount; targets: the T_base_flange (4, 4) targets the
     calibration's frames were rendered at; cell_seed: the seed of the cell's model errors
-    (sim.simulate.simulate); calibration and levels: the default method's and its learned noise."""
+    (hec.sim.simulate.simulate); calibration and levels: the default method's and its learned noise."""
 
     rng: np.random.Generator
     T_flange_cam_true: np.ndarray

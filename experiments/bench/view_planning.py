@@ -2,17 +2,17 @@
 Cramer-Rao bound, and whether calibrations on planned views are as accurate as predicted.
 
 Placement p draws everything from numpy.random.default_rng([seed, p]): a random mount
-(experiments.synthetic_scenes.random_mount, up to 50 mm and about 20 degrees from the default) and
+(hec.support.synthetic_scenes.random_mount, up to 50 mm and about 20 degrees from the default) and
 the default board (face up on its table) moved up to 0.1 m along each base axis and turned up to
 30 degrees about its normal. The planner knows the placement (as `hec plan` knows a scenario's
 nominal mount and board pose) and the scenario's noise, with corners at --corner-sigma-px (the
 detector reports about 0.013-0.02 px on the default renders). Every strategy's views are checked in
-the placement's simulated cell as `hec simulate` checks them (sim.cell.SimCell.accepts: inverse
+the placement's simulated cell as `hec simulate` checks them (hec.sim.cell.SimCell.accepts: inverse
 kinematics within the joint limits from the previous view, no collision, every marker in view and
 not hidden), in their order, and kept when the whole board is in view with
-estimator.solve.view_planning.VIEW_MARGIN_PX:
+hec.estimator.solve.view_planning.VIEW_MARGIN_PX:
 
-    d-optimal, worst-direction  estimator.solve.view_planning.plan_views over --candidates
+    d-optimal, worst-direction  hec.estimator.solve.view_planning.plan_views over --candidates
                                 random candidates (candidate_views), up to MAX_VIEWS views
     default                     the default 17-view list (rotation_rich_waypoints) in its order
     random                      the same candidates in a random order, up to MAX_VIEWS
@@ -25,15 +25,15 @@ do), the fraction of placements within WITHIN views, and, for the planners, the 
 reach the default list's final bound (goal: at most half the default's views).
 Achieved accuracy: per placement, noisy synthetic observations (the planner's noise) of the first
 k views of the d-optimal plan and of the default list, k in ACHIEVED_COUNTS, calibrated with the
-default method (estimator.solve.methods.DEFAULT_METHOD): the RMS of the error over the
+default method (hec.estimator.solve.methods.DEFAULT_METHOD): the RMS of the error over the
 placements beside the RMS of the predicted RSS 1-sigma, and the mean NEES of the WITHIN-view
 plan against chi-square's 95 % band. --render-placements N renders the first N placements' plan
 (WITHIN views) and default list with MuJoCo at the default and the realistic scenario
-(experiments.sweep.trials.render_views), detects and calibrates them the same way.
+(hec.sweep.trials.render_views), detects and calibrates them the same way.
 Speed: planning with --candidates candidates (view_informations and plan_views with the IK checks)
 timed beside one default-method calibration of the default 17 views, in the main process.
 
-    .venv/bin/python -m experiments.bench.view_planning [--placements 50] [--seed 0]
+    .venv/bin/python -m hec.bench.view_planning [--placements 50] [--seed 0]
         [--candidates 1000] [--corner-sigma-px 0.02] [--render-placements 0] [--workers 2]
         [--json OUT] [--plot OUT.png]
 
@@ -57,36 +57,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from estimator.geometry.camera import CameraIntrinsics  # noqa: E402
-from estimator.geometry.lie import pose_nees  # noqa: E402
-from estimator.geometry.transforms import (  # noqa: E402
-    invert,
-    make_transform,
-    pose_error,
-    rotation_about,
-    rpy_from_transform,
-)
-from estimator.geometry.waypoints import Waypoint, look_at_board, rotation_rich_waypoints  # noqa: E402
-from estimator.observe.observations import FrameObservations  # noqa: E402
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
-from estimator.solve.calibration import MethodOptions  # noqa: E402
-from estimator.solve.methods import DEFAULT_METHOD, run_method  # noqa: E402
-from estimator.solve.problem import (  # noqa: E402
-    CalibrationInputError,
-    ReportedArm,
-    RobotPoseNoise,
-    build_problem,
-    dataset_arm,
-    dataset_robot_noise,
-)
-from estimator.solve.view_planning import (  # noqa: E402
-    candidate_views,
-    plan_views,
-    predicted_sigmas,
-    view_informations,
-)
-from estimator.targets.target import Target  # noqa: E402
-from experiments.bench.view_planning_report import (  # noqa: E402
+from hec.bench.view_planning_report import (
     ACHIEVED_COUNTS,
     MAX_VIEWS,
     PLANNERS,
@@ -98,12 +69,36 @@ from experiments.bench.view_planning_report import (  # noqa: E402
     print_summary,
     summarise,
 )
-from experiments.calibrate.report import check_json_path, write_json  # noqa: E402
-from experiments.sweep.rows import SweepError  # noqa: E402
-from experiments.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount  # noqa: E402
-from sim.cell import SimCell  # noqa: E402
-from sim.noise import depth_noise_model, robot_pose_noise_model  # noqa: E402
-from sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.calibration.report import check_json_path, write_json  # noqa: E402
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.camera import CameraIntrinsics  # noqa: E402
+from hec.estimator.geometry.lie import pose_nees  # noqa: E402
+from hec.estimator.geometry.transforms import (
+    invert,
+    make_transform,
+    pose_error,
+    rotation_about,
+    rpy_from_transform,
+)
+from hec.estimator.geometry.waypoints import Waypoint, look_at_board, rotation_rich_waypoints  # noqa: E402
+from hec.estimator.observe.observations import FrameObservations  # noqa: E402
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
+from hec.estimator.solve.calibration import MethodOptions  # noqa: E402
+from hec.estimator.solve.methods import DEFAULT_METHOD, run_method  # noqa: E402
+from hec.estimator.solve.problem import (
+    CalibrationInputError,
+    ReportedArm,
+    build_problem,
+    dataset_arm,
+    dataset_robot_noise,
+)
+from hec.estimator.solve.view_planning import candidate_views, plan_views, predicted_sigmas, view_informations
+from hec.estimator.targets.target import Target  # noqa: E402
+from hec.sim.cell import SimCell  # noqa: E402
+from hec.sim.noise import depth_noise_model, robot_pose_noise_model  # noqa: E402
+from hec.sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount  # noqa: E402
+from hec.sweep.rows import SweepError  # noqa: E402
 
 EASY_HANDEYE_DEG, EASY_HANDEYE_M = 25.0, 0.1
 DISTANCE_M = SCENARIO.trajectory.distance_m
@@ -278,7 +273,7 @@ def _render(
     name: str,
 ) -> dict:
     """Render, detect and calibrate the views flange of a placement in the named scenario."""
-    from experiments.sweep.trials import render_views
+    from hec.sweep.trials import render_views
 
     scenario = placement_scenario(scenario_name, X, T_base_board)
     try:

@@ -1,5 +1,5 @@
 """The view-planning benchmark's summaries, acceptance lines, table and plot
-(experiments.bench.view_planning runs it)."""
+(hec.bench.view_planning runs it)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.solve.methods import DEFAULT_METHOD
+from hec.estimator.solve.methods import DEFAULT_METHOD
 
 STRATEGIES = ("d-optimal", "worst-direction", "default", "random", "easy_handeye")
 PLANNERS = ("d-optimal", "worst-direction")
@@ -183,8 +183,8 @@ def print_summary(summary: dict, timing: dict, corner_sigma_px: float) -> None:
 def plot(placements: list[dict], summary: dict, path: Path) -> None:
     """Predicted RSS 1-sigma (median over the placements) against the views per strategy, the
     achieved RMS errors of the d-optimal plan and the default list, and the target."""
-    from estimator.io.files import write_atomic
-    from experiments.plotting import figure, legend_below, plain_log_axis, png_bytes
+    from hec.estimator.common.files import write_atomic
+    from hec.support.plotting import figure, legend_below, plain_log_axis, png_bytes
 
     fig, axes = figure(10.0, 4.2, 1, 2)
     colours = {

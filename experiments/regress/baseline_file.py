@@ -31,11 +31,11 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from estimator.io.jsonfile import read_json_object
+from hec.estimator.common.jsonfile import read_json_object
 
 # sim (which picks the OpenGL backend) is imported where it is used.
 if TYPE_CHECKING:
-    from sim.scenario import Scenario
+    from hec.sim.scenario import Scenario
 
 FORMAT = "hec-regression-baseline"
 VERSION = 1
@@ -44,7 +44,7 @@ VERSION = 1
 DEFAULT_BASELINE = Path(__file__).with_name("baseline.json")
 WAYPOINT_FILE = "waypoints.csv"
 # A new baseline (`--update` on a missing file): ten of
-# estimator.geometry.waypoints.ROTATION_RICH_VIEWS, by index: tilts about the board's x and y
+# hec.estimator.geometry.waypoints.ROTATION_RICH_VIEWS, by index: tilts about the board's x and y
 # axes and the diagonals, and rolls both ways, so every axis of the mount is observed. The baseline
 # file stores the angles themselves (its views are all at the scenario's distance).
 DEFAULT_VIEW_INDICES = (1, 3, 5, 7, 9, 10, 11, 12, 13, 14)
@@ -70,7 +70,7 @@ RULE = (
 VIEWS_CONVENTION = (
     "[tilt, azimuth, roll] degrees: the head-on view of the board centre tilted by tilt about the "
     "board-plane axis at azimuth from board x, then rolled about the optical axis "
-    "(estimator.geometry.waypoints.look_at_board), from scenario.settings.trajectory.distance_m"
+    "(hec.estimator.geometry.waypoints.look_at_board), from scenario.settings.trajectory.distance_m"
 )
 
 
@@ -169,7 +169,7 @@ def _views(value: object, path: Path) -> tuple[tuple[float, float, float], ...]:
 
 
 def _scenario(section: dict, path: Path) -> Scenario:
-    from sim.scenario import ScenarioError, scenario_from_dict
+    from hec.sim.scenario import ScenarioError, scenario_from_dict
 
     settings = _field(section, "settings", "scenario", path)
     if not isinstance(settings, dict):
@@ -220,7 +220,7 @@ def _recorded(value: object, path: Path) -> dict[int, Measurement]:
 def baseline_from_document(data: dict, path: Path, require_record: bool = True) -> Baseline:
     """Check a baseline document read from path; raises BaselineError naming the file and the field.
     require_record: the baseline seed must have a recorded figure (not so for a new baseline)."""
-    from estimator.solve.methods import METHODS
+    from hec.estimator.solve.methods import METHODS
 
     if data.get("format") != FORMAT or data.get("version") != VERSION:
         raise BaselineError(
@@ -259,8 +259,8 @@ def load_baseline(path: Path) -> Baseline:
 def new_baseline_document() -> dict:
     """The document of a new baseline: the default scenario, the DEFAULT_VIEW_INDICES views, DEFAULT_SEED,
     ekf and DEFAULT_THRESHOLDS, with nothing recorded yet."""
-    from estimator.geometry.waypoints import ROTATION_RICH_VIEWS
-    from sim.scenario import Scenario
+    from hec.estimator.geometry.waypoints import ROTATION_RICH_VIEWS
+    from hec.sim.scenario import Scenario
 
     settings = Scenario().to_dict()
     del settings["seed"]

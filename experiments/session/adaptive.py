@@ -3,10 +3,10 @@ chosen from a pool of candidate waypoints by the information it adds at the runn
 session stops once the running estimate's RSS 1-sigma reaches the target.
 
 The pool: in simulation, candidate views drawn around the scenario's nominal mount and board pose
-(experiments.plan.scenario_candidates); with --waypoints, the file's waypoints (on the real cell: a
+(hec.commands.plan.scenario_candidates); with --waypoints, the file's waypoints (on the real cell: a
 taught pool; hec picks the order and stops early).
 
-The choice (AdaptiveViews): one greedy D-optimal step of estimator.solve.view_planning.plan_views, the
+The choice (AdaptiveViews): one greedy D-optimal step of hec.estimator.solve.view_planning.plan_views, the
 candidate that most raises the log-determinant of the mount's information (the board pose eliminated)
 when added to the information of the frames recorded so far.
 - Candidate informations ((12, 12) each, state = mount, board pose) come from view_informations at a
@@ -20,12 +20,12 @@ when added to the information of the frames recorded so far.
   own detections (the noise the EKF uses) at the running estimate; before it, the sum of the chosen
   candidates' predicted informations, so the first views are the planner's choice at the nominal
   values. A pool without nominal values (the real cell) starts with views spread over the pool
-  (estimator.solve.verify.spread_views), then the rest in order, until an estimate exists.
+  (hec.estimator.solve.verify.spread_views), then the rest in order, until an estimate exists.
 - Each chosen candidate goes through cell.plan([it]) (IK, limits, the cell's checks); a rejected one is
   dropped from the pool and the next best is tried.
 
 The stop rule, checked after each frame from MIN_STOP_VIEWS views on: the RSS of the running
-estimate's per-axis 1-sigmas (experiments.session.session.rss_sigmas) at or below both targets
+estimate's per-axis 1-sigmas (hec.session.session.rss_sigmas) at or below both targets
 (the running EKF, on the declared noise, is over-confident on its first frames: on the default cell
 at 0.2 mm / 0.02 deg, seed 1 stopped at 3 views with NEES 15); otherwise the session ends at
 max_views recorded views or when no candidate is left.
@@ -40,16 +40,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.geometry.transforms import pose_error
-from estimator.geometry.waypoints import PlannedMove, Waypoint
-from estimator.observe.synthetic import SyntheticNoise
-from estimator.solve.calibration import Calibration
-from estimator.solve.measurement_model import HandEyeState
-from estimator.solve.observability import state_information
-from estimator.solve.problem import MIN_FRAMES, build_problem
-from estimator.solve.verify import spread_views
-from estimator.solve.view_planning import plan_views, view_informations
-from experiments.session.session import LiveEstimate, SessionCell, rss_sigmas
+from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.geometry.waypoints import PlannedMove, Waypoint
+from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.calibration import Calibration
+from hec.estimator.solve.measurement_model import HandEyeState
+from hec.estimator.solve.observability import state_information
+from hec.estimator.solve.problem import MIN_FRAMES, build_problem
+from hec.estimator.solve.verify import spread_views
+from hec.estimator.solve.view_planning import plan_views, view_informations
+from hec.session.session import LiveEstimate, SessionCell, rss_sigmas
 
 # Candidates drawn for a simulated cell's pool.
 POOL_CANDIDATES = 300

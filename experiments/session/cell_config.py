@@ -15,12 +15,12 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
-from estimator.geometry.kinematics import ROBOTS, forward
-from estimator.io.tomlfile import Section, read_toml, validation_problems
-from estimator.observe.depth import DepthNoiseModel
-from estimator.solve.problem import RobotPoseNoise
-from hardware.realsense import FILTERS, RealSenseSettings
-from hardware.ur_robot import MotionSettings, SafetyLimits, URRobot
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.kinematics import ROBOTS, forward
+from hec.estimator.io.tomlfile import Section, read_toml, validation_problems
+from hec.estimator.observe.depth import DepthNoiseModel
+from hec.hardware.camera_settings import FILTERS, RealSenseSettings
+from hec.hardware.ur_robot import MotionSettings, SafetyLimits, URRobot
 
 Vector3 = tuple[float, float, float]
 Vector6 = tuple[float, float, float, float, float, float]

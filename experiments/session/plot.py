@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.io.files import write_atomic
-from estimator.solve.calibration import Calibration
-from experiments.plotting import plain_log_axis
+from hec.estimator.common.files import write_atomic
+from hec.estimator.solve.calibration import Calibration
+from hec.support.plotting import plain_log_axis
 
 PLOT_FILE = "session_estimate.png"
 _AXES = "xyz"

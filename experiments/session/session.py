@@ -2,9 +2,9 @@
 waypoint move, settle, capture, read the pose, write the frame, and (optionally) detect it
 and re-run the EKF over every frame so far to show the running estimate and its sigma.
 
-A cell (SessionCell) is sim.session_cell.SimulatedCell or hardware.cell.HardwareCell. The moves are
+A cell (SessionCell) is hec.sim.session_cell.SimulatedCell or hec.hardware.cell.HardwareCell. The moves are
 a fixed plan or a MoveSource that chooses each after the frames before it (the adaptive session,
-experiments.session.adaptive).
+hec.session.adaptive).
 """
 
 from __future__ import annotations
@@ -16,27 +16,28 @@ from typing import Protocol
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
-from estimator.io.dataset import Capture, Frame, load_dataset
-from estimator.io.recorder import DatasetRecorder
-from estimator.observe.corner_noise import learn_corner_floor
-from estimator.observe.observations import (
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.io.recorder import DatasetRecorder
+from hec.estimator.observe.corner_noise import learn_corner_floor
+from hec.estimator.observe.frames import Capture, Frame
+from hec.estimator.observe.observations import (
     FrameObservations,
     dataset_depth_noise,
     observe_dataset,
     observe_frame,
     save_observations,
 )
-from estimator.solve.calibration import Calibration, MethodOptions
-from estimator.solve.methods import DEFAULT_METHOD, run_method
-from estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
-from estimator.targets.kinds import detector_for
-from estimator.targets.qr import DetectorSettings
-from estimator.targets.target import Target
-from experiments.session.plot import PLOT_FILE, plot_convergence
-from hardware.realsense import CameraError
-from hardware.ur_robot import RobotError
+from hec.estimator.solve.calibration import Calibration, MethodOptions
+from hec.estimator.solve.methods import DEFAULT_METHOD, run_method
+from hec.estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
+from hec.estimator.targets.kinds import detector_for
+from hec.estimator.targets.qr import DetectorSettings
+from hec.estimator.targets.target import Target
+from hec.hardware.camera_settings import CameraError
+from hec.hardware.ur_robot import RobotError
+from hec.session.plot import PLOT_FILE, plot_convergence
 
 # Why the running estimate may not exist yet: too few usable frames, or the method failed.
 _NOT_YET = (CalibrationInputError, ValueError, np.linalg.LinAlgError)

@@ -8,8 +8,8 @@ import html
 
 import numpy as np
 
-from experiments.plotting import figure
-from experiments.sweep.summary import CellSummary
+from hec.support.plotting import figure
+from hec.sweep.summary import CellSummary
 
 PARAMETER = "error_sources"
 TEXT_FILE = "error_budget.txt"

@@ -6,7 +6,7 @@ A sweep runs ``trials`` trials in every cell of a grid and every method on each 
     seed = 0                    # root seed; trial t of cell c draws from default_rng([seed, c, t])
     paired = false              # true: trial t draws from default_rng([seed, t]) in every cell
     trials = 100                # trials per cell
-    methods = "all"             # or a list of names from estimator.solve.methods.METHODS
+    methods = "all"             # or a list of names from hec.estimator.solve.methods.METHODS
     scenario = "cell.toml"      # optional scenario file (relative to this file); default: built-in
 
     [fixed]                     # one value each, the same in every cell
@@ -36,9 +36,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from estimator.io.tomlfile import read_toml
-from estimator.targets.target import BoardDefinitionError
-from experiments.sweep.parameters import (
+from hec.estimator.io.tomlfile import read_toml
+from hec.estimator.targets.target import BoardDefinitionError
+from hec.sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
+from hec.sweep.parameters import (
     ERROR_SOURCES,
     FIDELITIES,
     FULL_VIEWS,
@@ -49,7 +50,6 @@ from experiments.sweep.parameters import (
     error_sources_name,
     parameter_columns,
 )
-from sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
 
 TOP_LEVEL_KEYS = ("fidelity", "seed", "paired", "trials", "methods", "scenario", "fixed", "levels", "grid")
 
@@ -84,7 +84,7 @@ def scenario_defaults(scenario: Scenario) -> dict[str, Any]:
 
 def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str = "sweep") -> Scenario:
     """The scenario of one cell: base (Scenario.to_dict()) with the cell's noise parameters.
-    The trajectory and mount are set per trial (experiments.sweep.runner)."""
+    The trajectory and mount are set per trial (hec.sweep.runner)."""
     data = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
     noise = {k: dict(v) for k, v in data.get("noise", {}).items()}
     noise["depth"] = {**noise.get("depth", {}), "enabled": True, "subpixel": params["depth_subpixel"]}
@@ -190,7 +190,7 @@ def _section(path: Path, data: dict, name: str) -> dict:
 
 
 def _methods(path: Path, value: Any) -> list[str]:
-    from estimator.solve.methods import METHODS
+    from hec.estimator.solve.methods import METHODS
 
     if value == "all":
         return list(METHODS)

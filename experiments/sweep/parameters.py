@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from estimator.geometry.waypoints import PAPER_OFFSETS_M, ROTATION_RICH_VIEWS
+from hec.estimator.geometry.waypoints import PAPER_OFFSETS_M, ROTATION_RICH_VIEWS
 
 MEASUREMENTS, RENDER = "measurements", "render"
 FIDELITIES = (MEASUREMENTS, RENDER)
@@ -17,7 +17,7 @@ MOUNTS = ("fixed", "random")
 # Views of the full trajectories; a random trajectory has as many as the rotation-rich one by default.
 FULL_VIEWS = {"rotation-rich": len(ROTATION_RICH_VIEWS), "paper": len(PAPER_OFFSETS_M), "random": 17}
 MIN_WAYPOINTS = 3
-# The model-error sections of a scenario (sim.scenario.ModelErrors) an error_sources value names.
+# The model-error sections of a scenario (hec.sim.scenario.ModelErrors) an error_sources value names.
 ERROR_SOURCES = ("arm", "intrinsics", "lens", "depth", "board", "image")
 
 

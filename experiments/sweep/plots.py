@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.plotting import figure, legend_below, plain_log_axis
-from experiments.sweep.summary import Convergence, _num, _ok_values, _rms, _same, _unique, swept_parameters
+from hec.support.plotting import figure, legend_below, plain_log_axis
+from hec.sweep.summary import Convergence, _num, _ok_values, _rms, _same, _unique, swept_parameters
 
 PARAMETER_LABELS = {
     "pixel_sigma_px": "corner pixel noise sigma [px]",

@@ -28,19 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
-from estimator.solve.calibration import MethodOptions
-from experiments.plotting import png_bytes
-from experiments.sweep.budget import TEXT_FILE, budget_table_html, budget_text, has_budget, plot_budget
-from experiments.sweep.plots import plot_boxes, plot_convergence, plot_error_vs_parameter
-from experiments.sweep.rows import (
-    EXAMPLE_DIR,
-    META_FILE,
-    ROWS_FILE,
-    trial_id,
-)
-from experiments.sweep.summary import (
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.solve.calibration import MethodOptions
+from hec.support.plotting import png_bytes
+from hec.sweep.budget import TEXT_FILE, budget_table_html, budget_text, has_budget, plot_budget
+from hec.sweep.plots import plot_boxes, plot_convergence, plot_error_vs_parameter
+from hec.sweep.rows import EXAMPLE_DIR, META_FILE, ROWS_FILE, trial_id
+from hec.sweep.summary import (
     CellSummary,
     ReportError,
     _unique,

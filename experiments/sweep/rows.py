@@ -8,7 +8,7 @@ Output folder:
                  completion (and on --resume) rewritten sorted, through a rename. load_rows reads it.
 
 Row columns (row_columns): trial_id ('c03-t0042'), cell ('c03'), fidelity, seed ('seed/cell/trial'),
-the fidelity's parameters (experiments.sweep.config.PARAMETERS, resolved values), method, status
+the fidelity's parameters (hec.sweep.config.PARAMETERS, resolved values), method, status
 ('ok' | 'failed'), failure ('' when ok), error_translation_mm, error_rotation_deg (against the truth),
 sigma_translation_mm, sigma_rotation_deg (root-sum-square of the method's three 1-sigmas; NaN without
 a covariance), nees (NaN without a covariance), crb_translation_mm, crb_rotation_deg (root-sum-square
@@ -25,9 +25,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
-from experiments.sweep.parameters import PARAMETERS, parameter_columns
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.sweep.parameters import PARAMETERS, parameter_columns
 
 ROWS_FILE, META_FILE, DATASETS_DIR, EXAMPLE_DIR = "rows.csv", "sweep.json", "datasets", "example"
 FORMAT, VERSION = "hec-sweep", 1

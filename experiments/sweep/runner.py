@@ -5,7 +5,7 @@ Trial t of cell c draws everything (mount, random views, noise) from
 ``numpy.random.default_rng([seed, c, t])`` (``[seed, t]`` in a paired sweep), so the results do
 not depend on where or in which order trials run, and one trial can be rerun alone (--rerun
 c03-t0042). The estimators, the detector and MuJoCo are imported where a trial runs
-(experiments.sweep.trials). Each worker process uses one BLAS thread (OPENBLAS_NUM_THREADS=1,
+(hec.sweep.trials). Each worker process uses one BLAS thread (OPENBLAS_NUM_THREADS=1,
 also what Dask's nanny sets), which keeps the floating-point results identical wherever a trial runs.
 """
 
@@ -32,11 +32,11 @@ from typing import Any
 
 from tqdm import tqdm
 
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
-from experiments.sweep.config import SweepConfig
-from experiments.sweep.parameters import PARAMETERS, RENDER, parameter_columns
-from experiments.sweep.rows import (
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.sweep.config import SweepConfig
+from hec.sweep.parameters import PARAMETERS, RENDER, parameter_columns
+from hec.sweep.rows import (
     DATASETS_DIR,
     EXAMPLE_DIR,
     FORMAT,
@@ -49,7 +49,7 @@ from experiments.sweep.rows import (
     format_rows,
     row_columns,
 )
-from experiments.sweep.trials import TrialTask, one_line, remove_temporary_folders, run_trial, tasks_for
+from hec.sweep.trials import TrialTask, one_line, remove_temporary_folders, run_trial, tasks_for
 
 POOL_RESTARTS = 3
 PARENT_POLL_S = 0.5  # how often a worker checks that the sweep that started it still runs
@@ -283,7 +283,7 @@ def _run_dask(tasks: list[TrialTask], client: Any, on_rows: Callable, on_error: 
 @contextlib.contextmanager
 def _terminate_as_interrupt() -> Iterator[None]:
     """SIGTERM (a batch system stopping the job) stops the sweep as Ctrl-C does, unless the caller
-    handles SIGTERM already (`hec` does: experiments.interrupts)."""
+    handles SIGTERM already (`hec` does: hec.support.interrupts)."""
 
     def interrupt(signum: int, frame: object) -> None:
         raise KeyboardInterrupt

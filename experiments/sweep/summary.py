@@ -11,17 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.lie import pose_minus
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.problem import CalibrationProblem
-from experiments.sweep.rows import (
-    FLOAT_COLUMNS,
-    ID_COLUMNS,
-    RESULT_COLUMNS,
-    ROWS_FILE,
-)
+from hec.estimator.geometry.lie import pose_minus
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.problem import CalibrationProblem
+from hec.sweep.rows import FLOAT_COLUMNS, ID_COLUMNS, RESULT_COLUMNS, ROWS_FILE
 
-# Columns every row has (experiments.sweep.runner's row contract; seed is text, e.g. "seed/cell/trial"). Every
+# Columns every row has (hec.sweep.runner's row contract; seed is text, e.g. "seed/cell/trial"). Every
 # other column is a parameter of the trial (pixel_sigma_px, waypoints, trajectory, mount, ...): swept
 # when it takes more than one value over the rows, fixed otherwise.
 STRING_COLUMNS = (*ID_COLUMNS, *RESULT_COLUMNS[:3])
@@ -39,7 +34,7 @@ class ReportError(ValueError):
 def load_report_rows(out_dir: Path) -> list[dict]:
     """The sweep's result rows of out_dir, one dict per trial x method, typed by column name.
 
-    Strict, unlike experiments.sweep.rows.load_rows (which skips what a resume rewrites): a row that
+    Strict, unlike hec.sweep.rows.load_rows (which skips what a resume rewrites): a row that
     does not read is an error naming the file, line and column. Reads DIR/rows.csv."""
     return read_rows_csv(Path(out_dir) / ROWS_FILE)
 
@@ -254,7 +249,7 @@ def summarise(rows: list[dict]) -> list[CellSummary]:
 class Convergence:
     """A filter over one trial. waypoints: (S,) waypoints taken in after each update (the last
     one + 1 for a prior fused after the frames). error: (S, 6) estimate minus truth in the
-    estimator.geometry.lie convention (m along the flange axes, rad about the camera axes). sigma: (S, 6)
+    hec.estimator.geometry.lie convention (m along the flange axes, rad about the camera axes). sigma: (S, 6)
     the filter's 1-sigma of the same components."""
 
     method: str
@@ -268,9 +263,9 @@ def convergence(
 ) -> Convergence:
     """Run ekf (or iekf) over the problem's frames, as run_method would (with the learned noise when
     options.learn_noise), and keep each update's error and 1-sigma."""
-    from estimator.solve.filters import filter_steps
-    from estimator.solve.methods import learned_setup
-    from estimator.solve.noise_learning import learn_noise
+    from hec.estimator.solve.filters import filter_steps
+    from hec.estimator.solve.methods import learned_setup
+    from hec.estimator.solve.noise_learning import learn_noise
 
     if options.learn_noise:
         name = "iekf" if iterated else "ekf"
@@ -286,10 +281,10 @@ def convergence(
 
 def representative_trial(seed: int) -> tuple[CalibrationProblem, np.ndarray]:
     """A measurement-level trial like the sweep's: a random mount, the default views, board and
-    noise (experiments.synthetic_scenes). Returns the problem and the true T_flange_cam (4, 4)."""
-    from estimator.observe.synthetic import SyntheticNoise
-    from estimator.solve.problem import build_problem
-    from experiments.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
+    noise (hec.support.synthetic_scenes). Returns the problem and the true T_flange_cam (4, 4)."""
+    from hec.estimator.observe.synthetic import SyntheticNoise
+    from hec.estimator.solve.problem import build_problem
+    from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
 
     rng = np.random.default_rng(seed)
     noise = SyntheticNoise()

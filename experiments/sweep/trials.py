@@ -3,8 +3,8 @@ observations (synthesised at measurement fidelity; rendered and detected at rend
 `hec demo` does) and run every method against the truth.
 
 Fidelities: ``measurements`` synthesises the observations from the cell's geometry and
-noise models (estimator.observe.synthetic: no images); ``render`` renders each trial with MuJoCo
-(sim.simulate; in memory, or into a dataset folder when kept), detects the board and estimates.
+noise models (hec.estimator.observe.synthetic: no images); ``render`` renders each trial with MuJoCo
+(hec.sim.simulate; in memory, or into a dataset folder when kept), detects the board and estimates.
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from estimator.geometry.camera import project_points
-from estimator.geometry.lie import pose_nees
-from estimator.geometry.transforms import invert, pose_error, rpy_from_transform, transform_points
-from estimator.geometry.waypoints import (
+from hec.estimator.geometry.camera import project_points
+from hec.estimator.geometry.lie import pose_nees
+from hec.estimator.geometry.transforms import invert, pose_error, rpy_from_transform, transform_points
+from hec.estimator.geometry.waypoints import (
     Waypoint,
     WaypointFileError,
     look_at_board,
@@ -32,16 +32,17 @@ from estimator.geometry.waypoints import (
     rotation_rich_waypoints,
     write_waypoint_file,
 )
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.observe.observations import camera_points
-from estimator.solve.problem import CalibrationInputError, build_problem, dataset_arm, dataset_robot_noise
-from experiments.sweep.config import SweepConfig, cell_scenario
-from experiments.sweep.parameters import MEASUREMENTS
-from experiments.sweep.rows import FLOAT_COLUMNS, SweepError, trial_id
-from sim.noise import depth_noise_model, robot_pose_noise_model
-from sim.scenario import scenario_from_dict
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.observations import camera_points
+from hec.estimator.solve.problem import CalibrationInputError, build_problem, dataset_arm, dataset_robot_noise
+from hec.sim.noise import depth_noise_model, robot_pose_noise_model
+from hec.sim.scenario import scenario_from_dict
+from hec.sweep.config import SweepConfig, cell_scenario
+from hec.sweep.parameters import MEASUREMENTS
+from hec.sweep.rows import FLOAT_COLUMNS, SweepError, trial_id
 
-# Random trajectory: views of the board centre (estimator.geometry.waypoints.look_at_board)
+# Random trajectory: views of the board centre (hec.estimator.geometry.waypoints.look_at_board)
 # with every marker in view.
 RANDOM_TILT_DEG, RANDOM_ROLL_DEG, RANDOM_DISTANCE_FACTOR = (10.0, 35.0), 30.0, (0.9, 1.2)
 RANDOM_VIEW_DRAWS = 200
@@ -133,7 +134,7 @@ def _mount(scenario: Any, kind: str, rng: np.random.Generator) -> np.ndarray:
     T_fixed = scenario.mount.transform()
     if kind == "fixed":
         return T_fixed
-    from experiments.synthetic_scenes import SCENARIO, random_mount
+    from hec.support.synthetic_scenes import SCENARIO, random_mount
 
     return T_fixed @ invert(SCENARIO.mount.transform()) @ random_mount(rng)
 
@@ -195,7 +196,7 @@ def _with_depth_bias(observations: list, flange_true: list, X: np.ndarray, scena
 
 def measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> tuple:
     """Synthesise the trial's observations and return the inputs (as render_inputs; no arm)."""
-    from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+    from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 
     board, intrinsics = scenario.board_definition(), scenario.camera.intrinsics()
     X = _mount(scenario, task.parameters["mount"], rng)
@@ -232,13 +233,13 @@ def render_views(
 ) -> tuple[Dataset, list]:
     """Render the scenario's cell with the mount T_flange_cam (4, 4) at the T_base_flange (4, 4)
     targets flange and detect it: (the dataset, its observations). The frames stay in memory
-    (estimator.io.memory) unless out names a folder to write the dataset into. sim_seed draws the
-    true cell, noise_seed (default sim_seed) each frame's noise (sim.simulate.simulate); name: the
+    (hec.estimator.io.memory) unless out names a folder to write the dataset into. sim_seed draws the
+    true cell, noise_seed (default sim_seed) each frame's noise (hec.sim.simulate.simulate); name: the
     trial, for messages and the scratch folder's name; example: with previews and detection
     overlays (needs out)."""
-    from estimator.targets.qr import DetectorSettings
-    from experiments.detection import detect_and_cache, detect_dataset, overlay_writer
-    from sim.simulate import SimulationError, simulate, simulate_in_memory
+    from hec.estimator.targets.qr import DetectorSettings
+    from hec.sim.simulate import SimulationError, simulate, simulate_in_memory
+    from hec.support.detection import detect_and_cache, detect_dataset, overlay_writer
 
     tmp = Path(tempfile.mkdtemp(prefix=f"hec-sweep-{name}-"))
     _TEMPORARY.add(tmp)
@@ -310,11 +311,11 @@ def _failed(base: dict, method: str, failure: str, crb: tuple[float, float], tim
 
 def run_trial(task: TrialTask) -> list[dict]:
     """One trial: its rows, one per method in task.methods (a failure is a row, not an exception)."""
-    from estimator.solve.calibration import MethodOptions
-    from estimator.solve.measurement_model import HandEyeState
-    from estimator.solve.methods import needs_learned_noise, solve
-    from estimator.solve.noise_learning import learn_noise
-    from estimator.solve.observability import observability
+    from hec.estimator.solve.calibration import MethodOptions
+    from hec.estimator.solve.measurement_model import HandEyeState
+    from hec.estimator.solve.methods import needs_learned_noise, solve
+    from hec.estimator.solve.noise_learning import learn_noise
+    from hec.estimator.solve.observability import observability
 
     base = {
         "trial_id": task.trial_id,

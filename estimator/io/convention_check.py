@@ -22,15 +22,15 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
-from estimator.geometry.transforms import invert, pose_error
-from estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
-from estimator.observe.pose_pairs import PosePair
-from estimator.solve.baselines import opencv_calibrate
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.initialise import mean_pose
-from estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
-from estimator.solve.problem import CalibrationInputError, CalibrationProblem
+from hec.estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
+from hec.estimator.geometry.transforms import invert, pose_error
+from hec.estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
+from hec.estimator.observe.pose_pairs import PosePair
+from hec.estimator.solve.baselines import opencv_calibrate
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.initialise import mean_pose
+from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
+from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
 # A mistaken convention is named when it leaves at most this fraction of the stated one's residual.
 MISTAKE_RATIO = 0.3

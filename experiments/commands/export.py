@@ -1,4 +1,4 @@
-"""`hec export CALIBRATION.json --to FORMAT`: the calibration for the user's stack (estimator.io.export).
+"""`hec export CALIBRATION.json --to FORMAT`: the calibration for the user's stack (hec.estimator.io.export).
 
 With a child frame that is the camera's root link (camera_link) the camera driver's camera_link ->
 optical frame transform is composed out; it comes from --link-optical-values, --link-optical FILE, the
@@ -14,11 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.transforms import transform_from_xyz_quat
-from estimator.io.calibration_file import CalibrationFile, CalibrationFileError, pose_field, read_calibration
-from estimator.io.export import FORMATS, Export, export_text, realsense_link_optical
-from estimator.io.files import write_atomic
-from estimator.io.jsonfile import read_json_object
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.geometry.transforms import transform_from_xyz_quat
+from hec.estimator.io.calibration_file import (
+    CalibrationFile,
+    CalibrationFileError,
+    pose_field,
+    read_calibration,
+)
+from hec.estimator.io.export import FORMATS, Export, export_text, realsense_link_optical
 
 DEFAULT_CHILD = {"urdf": "camera_link"}  # other formats: the optical frame
 OPTICAL_FRAME = "camera_color_optical_frame"
@@ -26,7 +31,7 @@ DEFAULT_LINK = "RealSense's standard optical rotation with ZERO offset (assumed:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from estimator.solve.methods import METHODS
+    from hec.estimator.solve.methods import METHODS
 
     p = sub.add_parser("export", help="write a calibration for ROS 2, URDF, easy_handeye2, YAML or JSON")
     p.add_argument("calibration", type=Path, help="a hec calibrate --json output")

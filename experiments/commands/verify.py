@@ -1,5 +1,5 @@
 """`hec verify CALIBRATION.json DATASET`: does a calibration still hold on a few new frames
-(estimator.solve.verify)? Exit code 0 consistent, 1 moved, 2 bad input or nothing to test against."""
+(hec.estimator.solve.verify)? Exit code 0 consistent, 1 moved, 2 bad input or nothing to test against."""
 
 from __future__ import annotations
 
@@ -10,17 +10,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
+from hec.estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
 
 if TYPE_CHECKING:
-    from estimator.solve.verify import Verification
+    from hec.estimator.solve.verify import Verification
 
 EXIT_MOVED = 1
 EXIT_UNTESTED = 2
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from estimator.solve.methods import METHODS
+    from hec.estimator.solve.methods import METHODS
 
     p = sub.add_parser(
         "verify", help="test whether a calibration still holds on a few new frames (has the camera moved?)"
@@ -46,8 +46,8 @@ def _noise_line(cal: CalibrationFile) -> str:
 
 def format_verification(v: Verification) -> list[str]:
     """The report's lines after the header: the shift with its sigma, the test, the verdict."""
-    from estimator.solve.verify import format_verdict
-    from experiments.calibrate.report import format_vector
+    from hec.calibration.report import format_vector
+    from hec.estimator.solve.verify import format_verdict
 
     sigma = np.sqrt(np.diag(v.covariance_verify))
     mm, deg = v.test_sigma
@@ -70,11 +70,11 @@ def format_verification(v: Verification) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """`hec verify`: the report; 0 consistent, 1 moved, 2 when the calibration has no covariance."""
-    from estimator.io.dataset import load_dataset
-    from estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
-    from estimator.solve.verify import format_verdict, verification_problem, verify_mount
-    from experiments.calibrate.report import check_json_path, write_json
-    from experiments.detection import cached_or_detected
+    from hec.calibration.report import check_json_path, write_json
+    from hec.estimator.io.dataset import load_dataset
+    from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+    from hec.estimator.solve.verify import format_verdict, verification_problem, verify_mount
+    from hec.support.detection import cached_or_detected
 
     if args.json is not None:
         check_json_path(args.json)
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         )
     observations, source = cached_or_detected(dataset, args.quiet)
     if not cal.use_depth:
-        from experiments.calibrate.command import without_depth
+        from hec.commands.calibrate import without_depth
 
         observations = without_depth(observations)
     problem = build_problem(
@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     print(_noise_line(cal))
     print("\n".join(format_verification(v)))
     if dataset.ground_truth is not None:
-        from estimator.geometry.transforms import pose_error
+        from hec.estimator.geometry.transforms import pose_error
 
         dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.T_flange_cam)
         print(

@@ -1,12 +1,12 @@
 """`hec plan --out W.csv`: views chosen by the information about T_flange_cam they add
-(estimator.solve.view_planning), as a waypoint file that `hec record`, `hec run` and a scenario's
+(hec.estimator.solve.view_planning), as a waypoint file that `hec record`, `hec run` and a scenario's
 `trajectory.kind = "file"` take.
 
 The candidates are predicted with a nominal mount, board pose, camera, robot pose noise and depth
 noise, and a corner noise the detector reports (--corner-sigma-px). They come from either
 - a simulated cell's scenario (--scenario, default the built-in one): each view the planner would
   choose is first checked in the simulated cell as `hec simulate` checks a waypoint
-  (sim.cell.SimCell.accepts: inverse kinematics within the joint limits from the previous view's
+  (hec.sim.cell.SimCell.accepts: inverse kinematics within the joint limits from the previous view's
   joints, no collision, every marker in view and not hidden), or
 - a real cell's calibration (--calibration CAL.json, with --cell F and the dataset it came from):
   its mount and board pose, the dataset's camera, board, depth noise and viewing distance, the cell
@@ -23,14 +23,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
-from estimator.geometry.transforms import invert
-from estimator.geometry.waypoints import Waypoint, rotation_rich_waypoints, waypoint_csv
-from estimator.io.files import write_atomic
-from estimator.observe.synthetic import SyntheticNoise
-from estimator.solve.methods import METHODS
-from estimator.solve.view_planning import (
+from hec.commands import arguments
+from hec.estimator.common.files import write_atomic
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.geometry.waypoints import Waypoint, rotation_rich_waypoints, waypoint_csv
+from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.methods import METHODS
+from hec.estimator.solve.view_planning import (
     CRITERIA,
     candidate_views,
     plan_views,
@@ -38,11 +39,10 @@ from estimator.solve.view_planning import (
     reachable,
     view_informations,
 )
-from estimator.targets.target import Target
-from experiments import arguments
+from hec.estimator.targets.target import Target
 
 if TYPE_CHECKING:
-    from sim.scenario import Scenario
+    from hec.sim.scenario import Scenario
 
 DEFAULT_VIEWS = 12
 DEFAULT_MAX_VIEWS = 40
@@ -142,10 +142,10 @@ def scenario_candidates(scenario: Scenario, count: int, rng: np.random.Generator
 
 def simulated_cell(args: argparse.Namespace) -> PlanningCell:
     """The scenario's nominal cell; views are checked in its simulated cell as `hec simulate` checks
-    a waypoint (sim.cell.SimCell.accepts)."""
-    from sim.cell import SimCell
-    from sim.noise import depth_noise_model, robot_pose_noise_model
-    from sim.scenario import load_scenario
+    a waypoint (hec.sim.cell.SimCell.accepts)."""
+    from hec.sim.cell import SimCell
+    from hec.sim.noise import depth_noise_model, robot_pose_noise_model
+    from hec.sim.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
     T_base_board, T_flange_cam = scenario.board.transform(), scenario.mount.transform()
@@ -171,10 +171,10 @@ def calibrated_cell(args: argparse.Namespace) -> PlanningCell:
     """A real cell from a calibration (its mount and board pose) and the dataset it came from (the
     camera, the board, the depth noise, the distance of its views): views are checked with the
     cell file's nominal kinematics, joint limits and workspace box, no renderer."""
-    from estimator.io.calibration_file import CalibrationFileError, pose_field, read_calibration
-    from estimator.io.dataset import load_dataset
-    from estimator.observe.observations import dataset_depth_noise
-    from experiments.session.cell_config import load_cell_config
+    from hec.estimator.io.calibration_file import CalibrationFileError, pose_field, read_calibration
+    from hec.estimator.io.dataset import load_dataset
+    from hec.estimator.observe.observations import dataset_depth_noise
+    from hec.session.cell_config import load_cell_config
 
     cal = read_calibration(args.calibration, args.method)
     if cal.pose_frame != "flange":

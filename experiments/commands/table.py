@@ -1,4 +1,4 @@
-"""The ``hec`` commands: the argument parser and the dispatch to each command (experiments.cli runs
+"""The ``hec`` commands: the argument parser and the dispatch to each command (hec.cli runs
 them, with the signals taken first)."""
 
 from __future__ import annotations
@@ -7,19 +7,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from estimator.io.calibration_file import CalibrationFileError
-from estimator.io.dataset import DatasetError
-from estimator.observe.observations import ObservationCacheError
-from estimator.solve.problem import CalibrationInputError
-from estimator.targets.target import BoardDefinitionError
-from experiments import arguments, importing
-from experiments import export as export_command
-from experiments import plan as plan_command
-from experiments import verify as verify_command
-from experiments.regress import command as regress
-from experiments.session import record, teach
-from experiments.sweep import command as sweep
-from experiments.sweep import report
+from hec.commands import arguments, importing, record, regress, sweep, teach
+from hec.commands import export as export_command
+from hec.commands import plan as plan_command
+from hec.commands import verify as verify_command
+from hec.estimator.io.calibration_file import CalibrationFileError
+from hec.estimator.observe.frames import DatasetError
+from hec.estimator.observe.observations import ObservationCacheError
+from hec.estimator.solve.problem import CalibrationInputError
+from hec.estimator.targets.target import BoardDefinitionError
+from hec.support.version import VERSION
+from hec.sweep import report
 
 USER_ERRORS = (
     BoardDefinitionError,
@@ -46,7 +44,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_detect(sub: argparse._SubParsersAction) -> None:
-    from estimator.targets.qr import DEFAULT_PASSES
+    from hec.estimator.targets.qr import DEFAULT_PASSES
 
     p = sub.add_parser(
         "detect", help="detect the board in a dataset, cache the observations (DATASET/detections.json)"
@@ -62,7 +60,7 @@ def _add_detect(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
-    from estimator.solve.methods import DEFAULT_METHOD, METHODS
+    from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
 
     p = sub.add_parser(
         "calibrate",
@@ -143,6 +141,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hec", description="Eye-in-hand calibration testbench and tool.")
+    parser.add_argument("--version", action="version", version=f"hec {VERSION}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_demo(sub)
     _add_simulate(sub)
@@ -165,13 +164,13 @@ def run(args: argparse.Namespace) -> int:
     """Run the command args name: its exit code (2 with a message on stderr for bad input)."""
     try:
         if args.command == "board":
-            from experiments.printable import write_board
+            from hec.commands.printable import write_board
 
             for line in write_board(args.board, args.out, args.dpi, args.definition):
                 print(line)
             return 0
         if args.command == "detect":
-            from experiments.detection import run_detect
+            from hec.support.detection import run_detect
 
             passes = tuple(p.strip() for p in args.passes.split(",") if p.strip())
             if not passes:
@@ -179,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
             run_detect(args.dataset, args.overlay, passes, args.quiet)
             return 0
         if args.command == "calibrate":
-            from experiments.calibrate.command import run as run_calibrate
+            from hec.commands.calibrate import run as run_calibrate
 
             return run_calibrate(args)
         if args.command in ("export", "verify", "plan", "import"):
@@ -195,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
             return teach.run(args)
         if args.command in ("sweep", "report", "regress"):
             return {"sweep": sweep, "report": report, "regress": regress}[args.command].run(args)
-        from experiments.demo import run_simulate
+        from hec.commands.demo import run_simulate
 
         return run_simulate(args)
     except USER_ERRORS as exc:

@@ -3,7 +3,7 @@ closed terminal) alike. The first raises KeyboardInterrupt (Terminated for SIGTE
 command's clean-up runs and hec exits with 128 + the signal number; further ones are ignored until
 the process has ended (hec says so once), so that a second Ctrl-C cannot cut the clean-up short.
 
-Nothing heavy is imported here: experiments.cli takes the signals before it imports the commands
+Nothing heavy is imported here: hec.cli takes the signals before it imports the commands
 (MuJoCo, OpenCV and SciPy load for seconds), so a signal during that is an interruption too.
 """
 

@@ -11,12 +11,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.io.dataset import Dataset, Frame, load_dataset
-from estimator.io.png import write_png
-from estimator.observe.corner_noise import CornerNoise, learn_corner_floor
-from estimator.observe.grading import grade_observations
-from estimator.observe.observations import (
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.io.png import write_png
+from hec.estimator.observe.corner_noise import CornerNoise, learn_corner_floor
+from hec.estimator.observe.frames import Dataset, Frame
+from hec.estimator.observe.grading import grade_observations
+from hec.estimator.observe.observations import (
     CACHE_FILE,
     FrameObservations,
     ObservationCacheError,
@@ -25,8 +26,8 @@ from estimator.observe.observations import (
     observe_dataset,
     save_observations,
 )
-from estimator.observe.overlay import draw_overlay
-from estimator.targets.qr import DEFAULT_PASSES, DetectorSettings
+from hec.estimator.observe.overlay import draw_overlay
+from hec.estimator.targets.qr import DEFAULT_PASSES, DetectorSettings
 
 OVERLAY_DIR = "overlay"
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from experiments.regress.baseline_file import (
+from hec.regress.baseline_file import (
     DEFAULT_BASELINE,
     QUANTITIES,
     WAYPOINT_FILE,
@@ -40,8 +40,8 @@ from experiments.regress.baseline_file import (
 # The pipeline (sim, which picks the OpenGL backend, estimator, OpenCV) is imported where it is used, so
 # that `hec` can import this module to build its parser on a machine without OpenGL.
 if TYPE_CHECKING:
-    from estimator.geometry.waypoints import Waypoint
-    from sim.scenario import Scenario
+    from hec.estimator.geometry.waypoints import Waypoint
+    from hec.sim.scenario import Scenario
 
 
 # ---------------------------------------------------------------- the baseline file
@@ -55,8 +55,8 @@ def regression_waypoints(
 ) -> list[Waypoint]:
     """Flange-pose waypoints (T_base_flange, metres) of the views, (tilt, azimuth, roll) degrees, from the
     scenario's board pose, mount and trajectory distance, as the rotation-rich trajectory makes them."""
-    from estimator.geometry.transforms import invert
-    from estimator.geometry.waypoints import Waypoint, look_at_board
+    from hec.estimator.geometry.transforms import invert
+    from hec.estimator.geometry.waypoints import Waypoint, look_at_board
 
     T_base_board = scenario.board.transform()
     T_cam_flange = invert(scenario.mount.transform())
@@ -73,7 +73,7 @@ def regression_waypoints(
 
 def trial_scenario(baseline: Baseline, work_dir: Path) -> Scenario:
     """The baseline's scenario with its views written to work_dir/waypoints.csv."""
-    from estimator.geometry.waypoints import write_waypoint_file
+    from hec.estimator.geometry.waypoints import write_waypoint_file
 
     waypoint_file = (work_dir / WAYPOINT_FILE).resolve()
     write_waypoint_file(waypoint_file, regression_waypoints(baseline.scenario, baseline.views_deg))
@@ -85,14 +85,14 @@ def run_trial(baseline: Baseline, scenario: Scenario, seed: int, dataset_dir: Pa
     """Render the scenario with this seed into dataset_dir (must not exist), detect with the default
     settings (cached in the dataset), calibrate with the baseline's method, grade against the truth.
     Raises the pipeline's errors (pipeline_errors())."""
-    from estimator.geometry.transforms import pose_error
-    from estimator.io.dataset import load_dataset
-    from estimator.solve.calibration import MethodOptions
-    from estimator.solve.methods import run_method
-    from estimator.solve.problem import build_problem, dataset_robot_noise
-    from estimator.targets.qr import DetectorSettings
-    from experiments.detection import detect_and_cache
-    from sim.simulate import simulate
+    from hec.estimator.geometry.transforms import pose_error
+    from hec.estimator.io.dataset import load_dataset
+    from hec.estimator.solve.calibration import MethodOptions
+    from hec.estimator.solve.methods import run_method
+    from hec.estimator.solve.problem import build_problem, dataset_robot_noise
+    from hec.estimator.targets.qr import DetectorSettings
+    from hec.sim.simulate import simulate
+    from hec.support.detection import detect_and_cache
 
     result = simulate(scenario, dataset_dir, seed, progress=False)
     dataset = load_dataset(result.out_dir)
@@ -107,10 +107,10 @@ def run_trial(baseline: Baseline, scenario: Scenario, seed: int, dataset_dir: Pa
 
 def pipeline_errors() -> tuple[type[Exception], ...]:
     """The errors by which the pipeline says it could not produce a result from its input."""
-    from estimator.io.dataset import DatasetError
-    from estimator.observe.observations import ObservationCacheError
-    from estimator.solve.problem import CalibrationInputError
-    from sim.simulate import SimulationError
+    from hec.estimator.observe.frames import DatasetError
+    from hec.estimator.observe.observations import ObservationCacheError
+    from hec.estimator.solve.problem import CalibrationInputError
+    from hec.sim.simulate import SimulationError
 
     return (SimulationError, CalibrationInputError, DatasetError, ObservationCacheError)
 
@@ -299,7 +299,7 @@ def _work_dir(keep: Path | None) -> tuple[Path, tempfile.TemporaryDirectory | No
 def _load_for(args: argparse.Namespace) -> Baseline:
     """The baseline; with --update and a missing file, a new one from the built-in scenario."""
     if args.update and not args.baseline.exists():
-        from experiments.calibrate.report import check_json_path
+        from hec.calibration.report import check_json_path
 
         check_json_path(args.baseline)
         print(f"{args.baseline} does not exist: a new baseline from the built-in scenario will be written")
@@ -347,7 +347,7 @@ def _update(baseline: Baseline, results: list[TrialResult], command: str) -> int
         for line in broken:
             print(f"  {line}", file=sys.stderr)
         return 1
-    from experiments.calibrate.report import write_json
+    from hec.calibration.report import write_json
 
     measurements = [r.measurement for r in results]
     write_json(baseline.path, updated_document(baseline.document, measurements, command))
@@ -389,7 +389,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m experiments.regress.command ...`, the same as `hec regress ...`."""
+    """`python -m hec.commands.regress ...`, the same as `hec regress ...`."""
     parser = argparse.ArgumentParser(prog="hec")
     sub = parser.add_subparsers(dest="command", required=True)
     add_parser(sub)

@@ -15,27 +15,23 @@ import csv
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pyrealsense2 as rs
 
-from estimator.geometry.waypoints import JOINT_COLUMNS, WaypointFileError
-from estimator.targets.kinds import detector_for, find_board
-from estimator.targets.target import BoardDefinitionError, TargetDetector
-from experiments.session.cell_config import CellConfigError, load_cell_config
-from hardware.realsense import CameraError, RealSenseCamera
-from hardware.ur_robot import RobotError, URRobot
+from hec.estimator.geometry.waypoints import JOINT_COLUMNS, WaypointFileError
+from hec.estimator.targets.kinds import detector_for, find_board
+from hec.estimator.targets.target import BoardDefinitionError, TargetDetector
+from hec.hardware.ur_robot import RobotError, URRobot
+from hec.session.cell_config import CellConfigError, load_cell_config
+
+if TYPE_CHECKING:
+    import pyrealsense2 as rs
+
+    from hec.hardware.realsense import RealSenseCamera
 
 HEADER = (*JOINT_COLUMNS, "label")
 PROMPT = "move the arm by hand, then Enter to store the pose, q to finish: "
-USER_ERRORS = (
-    RobotError,
-    CameraError,
-    CellConfigError,
-    BoardDefinitionError,
-    WaypointFileError,
-    FileExistsError,
-)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -69,6 +65,18 @@ def run(
     camera_context: a librealsense context to find the camera in (tests pass a software device's).
     read_line: reads the user's answer to a prompt; "" stores the pose, "q" (or end of input) finishes.
     """
+    # librealsense (the extra hec[realsense]) loads when the command runs.
+    from hec.hardware.camera_settings import CameraError
+    from hec.hardware.realsense import RealSenseCamera
+
+    user_errors = (
+        RobotError,
+        CameraError,
+        CellConfigError,
+        BoardDefinitionError,
+        WaypointFileError,
+        FileExistsError,
+    )
     try:
         config = load_cell_config(args.cell)
         host = config.robot_host(args.robot)
@@ -89,7 +97,7 @@ def run(
                         robot.teach_mode(False)
                     raise
                 robot.teach_mode(False)
-    except USER_ERRORS as exc:
+    except user_errors as exc:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2
     new = count - stored_before

@@ -1,4 +1,4 @@
-"""Leave-one-frame-out cross-validation in `hec calibrate` (estimator.solve.cross_validation): run it for
+"""Leave-one-frame-out cross-validation in `hec calibrate` (hec.estimator.solve.cross_validation): run it for
 a method's result, and its text, table and JSON forms.
 
 LOO costs one calibration per frame. It runs for a method unless --no-loo, or its estimated cost
@@ -16,11 +16,11 @@ import sys
 import numpy as np
 from tqdm import tqdm
 
-from estimator.observe.observations import FrameObservations
-from estimator.solve.calibration import Calibration, MethodOptions
-from estimator.solve.cross_validation import CrossValidation, leave_one_frame_out
-from estimator.solve.methods import DEFAULT_METHOD, METHODS, learned_setup
-from estimator.solve.problem import CalibrationProblem
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.solve.calibration import Calibration, MethodOptions
+from hec.estimator.solve.cross_validation import CrossValidation, leave_one_frame_out
+from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS, learned_setup
+from hec.estimator.solve.problem import CalibrationProblem
 
 LOO_KEY = "cross_validation"
 NOT_RUN = "not run (--no-loo)"

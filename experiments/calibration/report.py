@@ -1,5 +1,5 @@
 """The text and JSON forms of a calibration result (format_calibration, calibration_to_dict), shared by
-every command that reports (the comparison table of several methods is experiments.calibrate.comparison)."""
+every command that reports (the comparison table of several methods is hec.calibration.comparison)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.lie import pose_minus, so3_log
-from estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
-from estimator.io.files import write_atomic
-from estimator.solve.calibration import Calibration
-from estimator.solve.pick_error import PickError, pick_error, true_pick_error_mm, working_distance
-from estimator.solve.problem import CalibrationProblem, RobotPoseNoise
-from experiments.calibrate.loo import format_loo, loo_to_dict
+from hec.calibration.loo import format_loo, loo_to_dict
+from hec.estimator.common.files import write_atomic
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.lie import pose_minus, so3_log
+from hec.estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
+from hec.estimator.solve.calibration import Calibration
+from hec.estimator.solve.pick_error import PickError, pick_error, true_pick_error_mm, working_distance
+from hec.estimator.solve.problem import CalibrationProblem
 
 TRANSFORM_MEANING = (
     "T_flange_cam: the camera optical frame (x right, y down, z forward) in the flange (tool0) frame; "
@@ -64,7 +65,7 @@ def ground_truth_errors(cal: Calibration, T_true: np.ndarray) -> dict:
 
 
 def add_pick_error(cal: Calibration, problem: CalibrationProblem) -> None:
-    """cal.diagnostics[PICK_KEY]: the pick error (estimator.solve.pick_error) of a result with a
+    """cal.diagnostics[PICK_KEY]: the pick error (hec.estimator.solve.pick_error) of a result with a
     covariance and a board pose or landmarks; nothing otherwise."""
     if cal.covariance is None:
         return

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+# models/ sits two folders above this file both in a source checkout (models/ beside estimator/)
+# and in an installed wheel (hec/models beside hec/estimator).
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 
 
 def models_dir() -> Path:
     """The models/ folder, in a source checkout or an installed wheel."""
-    if MODELS_DIR.is_dir():
-        return MODELS_DIR
-    from importlib.resources import files
-
-    # hec_models is a namespace package: ask for a file in it to get a real folder.
-    return Path(str(files("hec_models").joinpath("cell.xml"))).parent
+    return MODELS_DIR

@@ -3,8 +3,8 @@ or, with --sim, on the simulated one; `hec run` calibrates the recording afterwa
 
 Order on the real cell: read the waypoints, connect to the arm, plan (joint targets, limits,
 workspace box), print the plan, stop there for --dry-run, open the camera, ask before the
-first motion (unless --yes), then record frame by frame (experiments.session.session).
-With --target-sigma-mm/--target-sigma-deg the session is adaptive (experiments.session.adaptive):
+first motion (unless --yes), then record frame by frame (hec.session.session).
+With --target-sigma-mm/--target-sigma-deg the session is adaptive (hec.session.adaptive):
 each next view is chosen from a pool (a --waypoints file, or in simulation candidate views around the
 scenario's nominal values) and the session stops once the running estimate's RSS 1-sigma reaches the
 target, or at --max-views.
@@ -24,34 +24,28 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
-from estimator.geometry.waypoints import (
+from hec.commands import arguments
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
+from hec.estimator.geometry.waypoints import (
     PlannedMove,
     Waypoint,
     WaypointFileError,
     read_waypoint_file,
     waypoints_fingerprint,
 )
-from estimator.io.dataset import DatasetError, GroundTruth
-from estimator.io.jsonfile import read_json_object
-from estimator.io.lock import FolderLockedError
-from estimator.io.recorder import DatasetRecorder
-from estimator.solve.methods import DEFAULT_METHOD, METHODS
-from estimator.solve.verify import spread_views
-from experiments import arguments
-from experiments.session.adaptive import (
-    DEFAULT_MAX_VIEWS,
-    POOL_CANDIDATES,
-    AdaptiveViews,
-    TargetError,
-    sigma_target,
-)
-from experiments.session.cell_config import CellConfig, CellConfigError, load_cell_config
-from experiments.session.session import LiveEstimate, SessionCell, run_session
+from hec.estimator.io.lock import FolderLockedError
+from hec.estimator.io.recorder import DatasetRecorder
+from hec.estimator.observe.frames import DatasetError, GroundTruth
+from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
+from hec.estimator.solve.verify import spread_views
+from hec.session.adaptive import DEFAULT_MAX_VIEWS, POOL_CANDIDATES, AdaptiveViews, TargetError, sigma_target
+from hec.session.cell_config import CellConfig, CellConfigError, load_cell_config
+from hec.session.session import LiveEstimate, SessionCell, run_session
 
 if TYPE_CHECKING:
-    from hardware.cell import HardwareCell
-    from sim.session_cell import SimulatedCell
+    from hec.hardware.cell import HardwareCell
+    from hec.sim.session_cell import SimulatedCell
 
 EXIT_STOPPED = 3
 CALIBRATION_FILE = "calibration.json"
@@ -60,7 +54,7 @@ CALIBRATION_FILE = "calibration.json"
 # --waypoints file may stand in for the scenario's trajectory, and a file may have been edited).
 RESUME_FIXED = ("simulation", "pose_frame", "waypoints")
 # Tags the adaptive session's candidate pool stream, apart from default_rng(seed) (the true cell) and
-# sim.noise.waypoint_rng's stream (the frames' noise).
+# hec.sim.noise.waypoint_rng's stream (the frames' noise).
 _POOL_STREAM = 2
 
 
@@ -145,10 +139,10 @@ def _check_out(args: argparse.Namespace) -> None:
 
 
 def _open_sim(args: argparse.Namespace) -> tuple[SimulatedCell, list[Waypoint], dict, GroundTruth, Callable]:
-    from sim.cell import SimCell
-    from sim.scenario import load_scenario
-    from sim.session_cell import SimulatedCell
-    from sim.simulate import scenario_waypoints, simulation_metadata
+    from hec.sim.cell import SimCell
+    from hec.sim.scenario import load_scenario
+    from hec.sim.session_cell import SimulatedCell
+    from hec.sim.simulate import scenario_waypoints, simulation_metadata
 
     scenario = load_scenario(args.scenario)
     seed = scenario.seed if args.seed is None else args.seed
@@ -244,8 +238,8 @@ def run(
 ) -> int:
     """`hec record` / `hec run`. camera_context: the librealsense context to find the camera in
     (None: a fresh one); read_line: asks for confirmation (None: the terminal)."""
-    from hardware.realsense import CameraError
-    from hardware.ur_robot import RobotError
+    from hec.hardware.camera_settings import CameraError
+    from hec.hardware.ur_robot import RobotError
 
     user_errors: tuple[type[Exception], ...] = (
         RecordError,
@@ -259,7 +253,7 @@ def run(
         DatasetError,
     )
     if args.sim:  # only then: importing sim picks an OpenGL backend, which a robot PC may lack
-        from sim.scenario import ScenarioError
+        from hec.sim.scenario import ScenarioError
 
         user_errors += (ScenarioError,)
     try:
@@ -299,7 +293,7 @@ def _record_sim_adaptive(
 ) -> int:
     """The adaptive session on the simulated cell, its pool POOL_CANDIDATES candidate views drawn
     around the scenario's nominal values (from the session's seed)."""
-    from experiments.plan import scenario_candidates
+    from hec.commands.plan import scenario_candidates
 
     seed = extra["simulation"]["seed"]
     pool = scenario_candidates(
@@ -318,9 +312,9 @@ def _record_sim_adaptive(
 def _record_hardware(
     args: argparse.Namespace, camera_context: object | None, read_line: Callable[[str], str] | None
 ) -> int:
-    from estimator.targets.kinds import find_board
-    from hardware.cell import HardwareCell, plan_moves
-    from hardware.realsense import RealSenseCamera
+    from hec.estimator.targets.kinds import find_board
+    from hec.hardware.cell import HardwareCell, plan_moves
+    from hec.hardware.realsense import RealSenseCamera
 
     config = load_cell_config(args.cell)
     if args.waypoints is None:
@@ -458,7 +452,7 @@ def _session(
 
 
 def _verify(args: argparse.Namespace) -> int:
-    from experiments import verify
+    from hec.commands import verify
 
     print()
     return verify.run(
@@ -467,8 +461,8 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from estimator.solve.calibration import Calibration
-    from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
+    from hec.commands.calibrate import CalibrateSettings, calibrate_dataset
+    from hec.estimator.solve.calibration import Calibration
 
     print()
     results = calibrate_dataset(

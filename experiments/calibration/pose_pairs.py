@@ -1,5 +1,5 @@
 """`hec calibrate` on a dataset of imported pose pairs (pose_pairs.json, no images): the OpenCV
-methods on the pairs, hec's pose-pair model (estimator.solve.pose_pair_methods) for ekf, iekf and
+methods on the pairs, hec's pose-pair model (hec.estimator.solve.pose_pair_methods) for ekf, iekf and
 batch, the report and the JSON."""
 
 from __future__ import annotations
@@ -8,14 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.io.calibration_file import CALIBRATION_FORMAT, CALIBRATION_VERSION
-from estimator.io.dataset import Dataset
-from estimator.observe.pose_pairs import read_pose_pairs
-from estimator.solve.baselines import OPENCV_METHODS
-from estimator.solve.calibration import MethodOptions
-from estimator.solve.pose_pair_methods import POSE_PAIR_MODEL_METHODS, solve_pose_pairs
-from estimator.solve.problem import CalibrationInputError, RobotPoseNoise
-from experiments.calibrate.report import (
+from hec.calibration.report import (
     MethodFailure,
     Result,
     calibration_to_dict,
@@ -23,6 +16,14 @@ from experiments.calibrate.report import (
     result_to_dict,
     write_json,
 )
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.io.calibration_file import CALIBRATION_FORMAT, CALIBRATION_VERSION
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.pose_pairs import read_pose_pairs
+from hec.estimator.solve.baselines import OPENCV_METHODS
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.pose_pair_methods import POSE_PAIR_MODEL_METHODS, solve_pose_pairs
+from hec.estimator.solve.problem import CalibrationInputError
 
 PAIR_METHODS = (*POSE_PAIR_MODEL_METHODS, *OPENCV_METHODS)
 

@@ -1,5 +1,5 @@
 """`hec calibrate`: estimate T_flange_cam from a dataset with one method or all of them, and report
-(the report's text and JSON forms are in experiments.calibrate.report)."""
+(the report's text and JSON forms are in hec.calibration.report)."""
 
 from __future__ import annotations
 
@@ -11,29 +11,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from estimator.io.calibration_file import (
-    CALIBRATION_FORMAT,
-    CALIBRATION_VERSION,
-    covariance_field,
-    pose_field,
-)
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.io.jsonfile import read_json_object
-from estimator.observe.observations import FrameObservations
-from estimator.solve.calibration import MethodOptions, Prior
-from estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method
-from estimator.solve.noise_learning import learn_noise
-from estimator.solve.problem import (
-    CalibrationInputError,
-    CalibrationProblem,
-    RobotPoseNoise,
-    build_problem,
-    dataset_arm,
-    dataset_robot_noise,
-)
-from experiments.calibrate.comparison import format_comparison
-from experiments.calibrate.loo import BUDGET_S, add_cross_validation
-from experiments.calibrate.report import (
+from hec.calibration.comparison import format_comparison
+from hec.calibration.loo import BUDGET_S, add_cross_validation
+from hec.calibration.report import (
     MethodFailure,
     Result,
     add_pick_error,
@@ -43,7 +23,28 @@ from experiments.calibrate.report import (
     result_to_dict,
     write_json,
 )
-from experiments.detection import cached_or_detected
+from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.io.calibration_file import (
+    CALIBRATION_FORMAT,
+    CALIBRATION_VERSION,
+    covariance_field,
+    pose_field,
+)
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.solve.calibration import MethodOptions, Prior
+from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method
+from hec.estimator.solve.noise_learning import learn_noise
+from hec.estimator.solve.problem import (
+    CalibrationInputError,
+    CalibrationProblem,
+    build_problem,
+    dataset_arm,
+    dataset_robot_noise,
+)
+from hec.support.detection import cached_or_detected
 
 ALL_METHODS = "all"
 # An imported dataset fitted worse than this (RMS pixel residual) gets its pose convention checked.
@@ -59,7 +60,7 @@ class CalibrateSettings:
     """What `hec calibrate` was asked for. method: a name in METHODS or 'all'.
     robot_sigma_mm / robot_sigma_deg: override the dataset's robot pose noise when given.
     loo: leave-one-frame-out cross-validation of the methods run (one calibration per frame), of those
-    whose folds fit in experiments.calibrate.loo.BUDGET_S unless loo_all."""
+    whose folds fit in hec.calibration.loo.BUDGET_S unless loo_all."""
 
     method: str = DEFAULT_METHOD
     map_model: str = "board"
@@ -143,7 +144,7 @@ def run_methods(
 ) -> list[Result]:
     """Each method on the same problem. With several, a CalibrationInputError becomes a MethodFailure;
     with one, it is raised. loo: cross-validate each result whose folds fit in loo_budget_s seconds
-    (None: any), experiments.calibrate.loo; the others say why not."""
+    (None: any), hec.calibration.loo; the others say why not."""
     results: list[Result] = []
     learned = None  # learned once, shared by the methods that model the noise
     bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
@@ -258,7 +259,7 @@ def calibrate_dataset(
     options = method_options(settings)
     noise, noise_source = robot_noise(dataset, settings.robot_sigma_mm, settings.robot_sigma_deg)
     if dataset.metadata.get("pose_pairs_file"):
-        from experiments.calibrate.pose_pairs import calibrate_pose_pairs
+        from hec.calibration.pose_pairs import calibrate_pose_pairs
 
         return calibrate_pose_pairs(dataset, settings.method, options, noise, noise_source, json_out)
     source = "as just detected"
@@ -299,9 +300,9 @@ def calibrate_dataset(
 def convention_lines(dataset: Dataset, problem: CalibrationProblem, results: list[Result]) -> list[str]:
     """For an imported dataset whose poses some method fits poorly (RMS over POOR_FIT_PX) or not at
     all, the convention check of its pose numbers and the board layout check
-    (estimator.solve.convention_check): the lines to print."""
-    from estimator.io.pose_file import PoseConvention
-    from estimator.solve.convention_check import check_board_layout, check_pose_convention
+    (hec.estimator.io.convention_check): the lines to print."""
+    from hec.estimator.io.convention_check import check_board_layout, check_pose_convention
+    from hec.estimator.io.pose_file import PoseConvention
 
     record = dataset.metadata.get("provenance") or {}
     poor = [r for r in results if isinstance(r, MethodFailure) or r.residual_rms_px > POOR_FIT_PX]
@@ -322,7 +323,7 @@ def convention_lines(dataset: Dataset, problem: CalibrationProblem, results: lis
 
 def run(args: argparse.Namespace) -> int:
     """`hec calibrate` from parsed arguments: 0 when a method calibrated, 2 when none could."""
-    from estimator.solve.calibration import Calibration
+    from hec.estimator.solve.calibration import Calibration
 
     settings = CalibrateSettings(
         method=args.method,

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.transforms import rpy_from_transform, xyz_quat_from_transform
-from experiments import interrupts
+from hec.estimator.geometry.transforms import rpy_from_transform, xyz_quat_from_transform
+from hec.support import interrupts
 
 IDEAL_CELL_NOTE = (
     "note: the default scenario is the ideal cell (exact kinematics, camera and board); "
@@ -21,9 +21,9 @@ IDEAL_CELL_NOTE = (
 
 def run_simulate(args: argparse.Namespace) -> int:
     """`hec demo` (args.command == "demo") or `hec simulate`; 0 done, 2 for a bad scenario."""
-    from estimator.geometry.waypoints import WaypointFileError
-    from sim.scenario import ScenarioError, load_scenario
-    from sim.simulate import SimulationError, simulate
+    from hec.estimator.geometry.waypoints import WaypointFileError
+    from hec.sim.scenario import ScenarioError, load_scenario
+    from hec.sim.simulate import SimulationError, simulate
 
     try:
         if args.command == "demo":
@@ -74,8 +74,8 @@ def _print_simulation(result: object, T_flange_cam: np.ndarray) -> None:
 
 def _demo_detect_and_calibrate(dataset: Path) -> None:
     """The demo after simulation: detect and grade, then calibrate with ekf."""
-    from experiments.calibrate.command import CalibrateSettings, calibrate_dataset
-    from experiments.detection import run_detect
+    from hec.commands.calibrate import CalibrateSettings, calibrate_dataset
+    from hec.support.detection import run_detect
 
     print()
     observations = run_detect(dataset, overlay=True, quiet=True)

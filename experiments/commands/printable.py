@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from estimator.io.files import write_atomic
-from estimator.targets.kinds import find_board, save_board
-from estimator.targets.target import Target
+from hec.estimator.common.files import write_atomic
+from hec.estimator.targets.kinds import find_board, save_board
+from hec.estimator.targets.target import Target
 
 SCALE_BAR_M = 0.1
 # The smallest printed feature (a QR module, a tag bit, a square) drawn narrower than this prints

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.lie import so3_exp
-from estimator.geometry.transforms import make_transform
-from estimator.geometry.waypoints import paper_waypoints, rotation_rich_waypoints
-from estimator.observe.observations import FrameObservations
-from estimator.observe.synthetic import SyntheticNoise, synthetic_observations
-from sim.scenario import load_scenario
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.lie import so3_exp
+from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.geometry.waypoints import paper_waypoints, rotation_rich_waypoints
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.sim.scenario import load_scenario
 
 SCENARIO = load_scenario(None)
 BOARD = SCENARIO.board_definition()

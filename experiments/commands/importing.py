@@ -1,5 +1,5 @@
 """`hec import LAYOUT SOURCE --out DIR`: a hec dataset from another tool's layout
-(estimator.io.layouts): an image folder with a pose file, ViSP's hand-eye folder, or an
+(hec.estimator.io.layouts): an image folder with a pose file, ViSP's hand-eye folder, or an
 easy_handeye2 .samples file of pose pairs. Image imports are detected at once (the observations
 cached as `hec detect` would) and the robot poses' convention is checked: if a common mistake fits
 the data much better than the stated convention, hec says which and the option that selects it. The
@@ -14,17 +14,18 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry.camera import CameraIntrinsics
-from estimator.geometry.kinematics import JOINT_ORDERS
-from estimator.geometry.transforms import invert
-from estimator.io.dataset import Dataset, load_dataset
-from estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
-from estimator.io.layouts import JointFile, LayoutError, read_easy_handeye_samples, read_folder, read_visp
-from estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
-from estimator.observe.pose_pairs import PosePair
-from estimator.solve.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
-from estimator.targets.kinds import find_board
-from experiments import arguments
+from hec.commands import arguments
+from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import JOINT_ORDERS
+from hec.estimator.geometry.transforms import invert
+from hec.estimator.io.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
+from hec.estimator.io.dataset import load_dataset
+from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
+from hec.estimator.io.layouts import JointFile, LayoutError, read_easy_handeye_samples, read_folder, read_visp
+from hec.estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.pose_pairs import PosePair
+from hec.estimator.targets.kinds import find_board
 
 LAYOUTS = ("folder", "visp", "easy_handeye2")
 IMPORT_ERRORS = (LayoutError, PoseFileError, IntrinsicsFileError)
@@ -83,7 +84,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Import, then (image layouts) detect and check the pose convention; prints what it did."""
-    from estimator.io.importer import import_images, import_pose_pairs, provenance
+    from hec.estimator.io.importer import import_images, import_pose_pairs, provenance
 
     try:
         if args.layout == "easy_handeye2":
@@ -183,10 +184,10 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
 def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
     """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention,
     its board file and its joints (if any): the lines to print."""
-    from estimator.solve.convention_check import check_board_layout, check_pose_convention
-    from estimator.solve.problem import build_problem, dataset_robot_noise
-    from estimator.targets.qr import DetectorSettings
-    from experiments.detection import detect_and_cache
+    from hec.estimator.io.convention_check import check_board_layout, check_pose_convention
+    from hec.estimator.solve.problem import build_problem, dataset_robot_noise
+    from hec.estimator.targets.qr import DetectorSettings
+    from hec.support.detection import detect_and_cache
 
     dataset = load_dataset(dataset_path)
     observations, cache, _ = detect_and_cache(dataset, DetectorSettings(), quiet)
@@ -209,8 +210,8 @@ def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
 def _joint_check(dataset: Dataset) -> list[str]:
     """The joint-order check of an imported dataset with joints (or why it cannot run) and, when the
     poses are the joints' kinematics in other base or tool frames, which."""
-    from estimator.solve.convention_check import check_joint_frames, check_joint_order
-    from estimator.solve.problem import dataset_arm
+    from hec.estimator.io.convention_check import check_joint_frames, check_joint_order
+    from hec.estimator.solve.problem import dataset_arm
 
     arm = dataset_arm(dataset)
     if arm is None:

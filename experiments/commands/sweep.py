@@ -10,21 +10,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimator.io.jsonfile import read_json_object
-from experiments.interrupts import interrupted_exit_code
-from experiments.sweep.rows import (
-    DATASETS_DIR,
-    META_FILE,
-    ROWS_FILE,
-    SweepError,
-    load_rows,
-    read_complete_rows,
-)
+from hec.estimator.common.jsonfile import read_json_object
+from hec.support.interrupts import interrupted_exit_code
+from hec.sweep.rows import DATASETS_DIR, META_FILE, ROWS_FILE, SweepError, load_rows, read_complete_rows
 
 # The sweep's configuration and runner import the simulator (which picks an OpenGL backend): they
 # are imported when a sweep runs, so that `hec` builds its parser on a machine without OpenGL.
 if TYPE_CHECKING:
-    from experiments.sweep.config import SweepConfig
+    from hec.sweep.config import SweepConfig
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -97,8 +90,8 @@ def _summary(rows: list[dict], config: SweepConfig, most: int = 30) -> None:
 def run(args: argparse.Namespace) -> int:
     """`hec sweep`. Returns 0 when every trial is done, 1 when some were lost, 2 on bad input, 130 on
     Ctrl-C."""
-    from experiments.sweep.config import SweepConfigError, load_config
-    from experiments.sweep.runner import available_cores, check_same_config, rerun_trial, run_sweep, same_rows
+    from hec.sweep.config import SweepConfigError, load_config
+    from hec.sweep.runner import available_cores, check_same_config, rerun_trial, run_sweep, same_rows
 
     config, out_dir = None, Path(args.out)
     try:
@@ -147,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     except (SweepConfigError, SweepError) as exc:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (experiments.interrupts)
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (hec.support.interrupts)
         methods = config.methods if config is not None else None
         done = len({r["trial_id"] for r in read_complete_rows(out_dir / ROWS_FILE, methods)})
         print(
@@ -163,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     )
     _summary(rows, config)
     if not outcome.lost:
-        from experiments.sweep.report import ReportError, build_report
+        from hec.sweep.report import ReportError, build_report
 
         try:
             print(f"report: {build_report(out_dir, rows).html}")
@@ -180,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point (`python -m experiments.sweep.command CONFIG --out DIR`)."""
+    """Stand-alone entry point (`python -m hec.commands.sweep CONFIG --out DIR`)."""
     parser = argparse.ArgumentParser(prog="hec")
     add_parser(parser.add_subparsers(dest="command", required=True))
     return run(parser.parse_args(["sweep", *(sys.argv[1:] if argv is None else argv)]))

@@ -1,0 +1,1 @@
+"""The bottom of the library: file helpers and small shared types; it imports nothing else of hec."""

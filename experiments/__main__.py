@@ -1,0 +1,7 @@
+"""``python -m hec``: the hec command line."""
+
+import sys
+
+from hec.cli import main
+
+sys.exit(main())
