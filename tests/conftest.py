@@ -55,6 +55,24 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
             pytest.skip(f"needs hec[{','.join(missing)}], not installed")
 
 
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo) -> pytest.TestReport:
+    """A test (or its fixture) that imports an optional library that is not installed is skipped,
+    naming the extra; the same import error with the extra installed fails as any error does."""
+    report = yield
+    error = call.excinfo.value if call.excinfo is not None else None
+    if isinstance(error, ModuleNotFoundError):
+        extra = EXTRA_OF_MODULE.get((error.name or "").split(".")[0])
+        if extra in MISSING_EXTRAS:
+            report.outcome = "skipped"
+            report.longrepr = (
+                str(item.path),
+                item.location[1] or 0,
+                f"needs hec[{extra}] ({error.name} is not installed)",
+            )
+    return report
+
+
 # A non-interactive shell starts background jobs with SIGINT ignored and nohup ignores SIGHUP;
 # hec (like any program) keeps an ignored signal ignored, so the tests that send these to hec (in
 # this process or in the subprocesses it starts, which inherit an ignored signal) would test

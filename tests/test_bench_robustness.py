@@ -3,10 +3,13 @@ method and the default method's acceptance lines."""
 
 from __future__ import annotations
 
+import pytest
+
 from hec.bench.robustness import CASES, format_case, run_cases
 from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
 
 
+@pytest.mark.needs("sim")
 def test_two_cases_give_every_row_and_the_acceptance_lines() -> None:
     cases = [c for c in CASES if c.key in ("measurements: ideal", "measurements: arm noise 3x")]
     assert len(cases) == 2

@@ -133,6 +133,7 @@ def test_models_found_in_the_installed_wheel(wheel: Path, tmp_path: Path) -> Non
     assert Path(proc.stdout.strip()).is_file()
 
 
+@pytest.mark.needs("sim")
 def test_installed_wheel_runs_the_demo(wheel: Path, tmp_path: Path) -> None:
     """`hec demo` from the wheel's files alone (not the editable install of the work tree): the
     subpackages, the models and the regression baseline all come from the wheel."""

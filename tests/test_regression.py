@@ -146,6 +146,7 @@ def test_command_errors_name_the_file(tmp_path: Path) -> None:
     assert (tmp_path / "keep" / "data.txt").read_text() == "mine"
 
 
+@pytest.mark.needs("sim")
 def test_command_fails_a_regression_and_update_records_the_new_figure(
     baseline: Baseline, tmp_path: Path
 ) -> None:

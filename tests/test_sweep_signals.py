@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 RENDER = 'fidelity = "render"\ntrials = 4\nmethods = ["opencv-tsai"]\n[fixed]\nwaypoints = 5\n'
 
@@ -58,6 +60,7 @@ def _start_render_sweep(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     return process, scratch
 
 
+@pytest.mark.needs("sim")
 def test_ctrl_c_during_a_render_sweep_leaves_no_scratch_folder(tmp_path: Path) -> None:
     process, scratch = _start_render_sweep(tmp_path)
     process.send_signal(signal.SIGINT)
@@ -67,6 +70,7 @@ def test_ctrl_c_during_a_render_sweep_leaves_no_scratch_folder(tmp_path: Path) -
     assert list(scratch.iterdir()) == []
 
 
+@pytest.mark.needs("sim")
 def test_the_workers_of_a_killed_sweep_exit(tmp_path: Path) -> None:
     process, scratch = _start_render_sweep(tmp_path)
     workers = _children(process.pid)  # the pool's worker and multiprocessing's resource tracker
