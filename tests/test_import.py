@@ -25,6 +25,7 @@ from hec.estimator.io.layouts import (
     write_folder,
     write_visp,
 )
+from hec.estimator.io.pairing import PairingError
 from hec.estimator.io.pose_file import PoseConvention, PoseFileError, read_pose_file, values_from_poses
 from hec.estimator.observe.observations import observe_dataset
 from hec.estimator.observe.pose_pairs import PosePair, read_pose_pairs
@@ -294,14 +295,14 @@ def test_bad_sources_name_the_file_and_the_field(exported, tmp_path) -> None:
     poses = tmp_path / "poses.csv"
     lines = (exported["folder"] / "poses.csv").read_text().splitlines()
     poses.write_text("\n".join(lines[:-1]) + "\n")  # the last image has no pose
-    with pytest.raises(LayoutError, match=r"images without poses in .*poses.csv: 000016.png"):
+    with pytest.raises(PairingError, match=r"images without poses in .*poses.csv: 000016.png"):
         read_folder(images, poses, CONVENTION)
     poses.write_text("\n".join([lines[0], lines[1].replace("000000.png", "missing.png")]) + "\n")
-    with pytest.raises(LayoutError, match="pose 0 names image 'missing.png', which is not in"):
+    with pytest.raises(PairingError, match="line 2 names image 'missing.png', which is not in"):
         read_folder(images, poses, CONVENTION)
     unnamed = tmp_path / "unnamed.csv"
     unnamed.write_text("\n".join(line.split(",", 1)[1] for line in lines[:5]) + "\n")
-    with pytest.raises(LayoutError, match="has 17 images but .*unnamed.csv 4 poses"):
+    with pytest.raises(PairingError, match="has 17 images but .*unnamed.csv 4 poses"):
         read_folder(images, unnamed, CONVENTION)
     samples = tmp_path / "bad.samples"
     samples.write_text("samples:\n- robot: {translation: {x: 0, y: 0, z: 0}}\n")
@@ -337,12 +338,12 @@ def test_bad_joint_files_name_the_file_and_the_field(exported, tmp_path) -> None
     with pytest.raises(LayoutError, match=r"joints.csv: no joints for image 000016.png"):
         read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
     joints.write_text("\n".join(line.split(",", 1)[1] for line in lines[:5]) + "\n")
-    with pytest.raises(LayoutError, match="joints.csv has 4 rows of joints but there are 17 images"):
+    with pytest.raises(LayoutError, match="joints.csv has 4 rows of joints but the pose file 17"):
         read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
     joints.write_text(
         "\n".join([lines[0], lines[1].replace(lines[1].split(",")[3], "nan"), *lines[2:]]) + "\n"
     )
-    with pytest.raises(LayoutError, match="the joints of image 000000.png are not finite"):
+    with pytest.raises(PoseFileError, match="joints.csv: line 2: a NaN or infinite number"):
         read_folder(images, poses, CONVENTION, joint_file=JointFile(joints))
     joints.write_text("\n".join(",".join(line.split(",")[:4]) for line in lines) + "\n")
     with pytest.raises(

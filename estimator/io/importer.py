@@ -44,6 +44,7 @@ def provenance(
         record["pose_convention"] = frames.convention.to_dict()
         record["pose_values"] = np.asarray(frames.pose_values, dtype=float).tolist()
         record["images"] = [str(p.resolve()) for p in frames.images]
+        record["pairing"] = frames.pairing.to_dict()
     if joint_file is not None:
         record["joints"] = {"unit": joint_file.unit, "order": joint_file.order}
     return record
@@ -86,11 +87,41 @@ def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
 
 
 def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np.ndarray:
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
-        raise LayoutError(f"{path}: expected a 16-bit single-channel depth PNG")
-    _check_size(path, raw, intrinsics)
-    return decode_depth(raw, depth_scale_m)
+    """(H, W) float32 metres of a 16-bit depth PNG or a numpy .npy depth image (integers or floats,
+    either times depth_scale_m), 0 where there is no depth."""
+    if path.suffix.lower() == ".npy":
+        try:
+            raw = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise LayoutError(f"{path}: not a numpy .npy file ({exc})") from None
+        if raw.ndim != 2 or not np.issubdtype(raw.dtype, np.number):
+            raise LayoutError(f"{path}: expected an (H, W) array of depths, got {raw.dtype} {raw.shape}")
+        _check_size(path, raw, intrinsics)
+        depth_m = np.where(np.isfinite(raw) & (raw > 0), raw, 0).astype(np.float32) * np.float32(
+            depth_scale_m
+        )
+    else:
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
+            raise LayoutError(f"{path}: expected a 16-bit single-channel depth PNG")
+        _check_size(path, raw, intrinsics)
+        depth_m = decode_depth(raw, depth_scale_m)
+    _check_depth_range(path, depth_m, depth_scale_m)
+    return depth_m
+
+
+def _check_depth_range(path: Path, depth_m: np.ndarray, depth_scale_m: float) -> None:
+    """Refuse depths whose typical value is no camera's range: the depth scale is then wrong."""
+    valid = depth_m[depth_m > 0]
+    if valid.size == 0:
+        return
+    median = float(np.median(valid))
+    if not 0.03 <= median <= 30.0:
+        raise LayoutError(
+            f"{path}: with --depth-scale {depth_scale_m:g} m per unit the depths are {median:.4g} m "
+            "typically, outside any depth camera's range; give the depth's unit in metres (0.001 for "
+            "millimetres, 1 for metres)"
+        )
 
 
 def _check_size(path: Path, image: np.ndarray, intrinsics: CameraIntrinsics) -> None:

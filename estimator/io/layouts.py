@@ -1,9 +1,10 @@
 """Other tools' hand-eye data layouts, read and written.
 
 - ``folder``: a folder of images plus a pose file in any convention (hec.estimator.io.pose_file), one
-  pose per image: by the pose file's ``image`` column, else the images in name order; depth
-  images (16-bit PNG, same names) optionally in another folder; joint angles optionally in a joint
-  file (any count per image; a UR arm's six in its own order or the ROS driver's).
+  pose per image, paired by an explicit key (hec.estimator.io.pairing: the pose file's ``image``
+  column, the numbers in the image names, or the nearest time); depth images (16-bit PNG or a
+  numpy .npy, same names) optionally in another folder; joint angles optionally in a joint file
+  (any count per image; a UR arm's six in its own order or the ROS driver's), paired as the poses.
 - ``visp``: ViSP's hand-eye tutorial layout: ``image-N.png`` beside ``pose_fPe_N.yaml`` (N from 1),
   each pose ViSP's vpPoseVector YAML (``rows: 6``, ``cols: 1``, ``data``: translation in metres,
   then theta-u, a rotation vector in radians) of the end-effector in the robot's reference frame,
@@ -29,14 +30,16 @@ from scipy.spatial.transform import Rotation
 from hec.estimator.common.files import write_atomic
 from hec.estimator.geometry.kinematics import joints_in_arm_order
 from hec.estimator.geometry.transforms import make_transform
-from hec.estimator.io.pose_file import PoseConvention, poses_from_values, read_pose_values, values_from_poses
+from hec.estimator.io.pairing import Pairing, natural_key, pair_images
+from hec.estimator.io.pose_file import PoseConvention, poses_from_values, values_from_poses
+from hec.estimator.io.pose_table import IMAGE_SUFFIXES, read_number_table
 from hec.estimator.observe.pose_pairs import PosePair
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+DEPTH_SUFFIXES = (".png", ".npy")
 VISP_CONVENTION = PoseConvention(
     rotation="rotvec", angle_unit="rad", length_unit="m", direction="base-to-flange"
 )
-_VISP_POSE = re.compile(r"pose_fPe_(\d+)\.yaml$")
+_TRAILING_NUMBER = re.compile(r"(\d+)\D*$")
 
 
 class LayoutError(ValueError):
@@ -58,13 +61,16 @@ class LayoutFrames:
     """Images with their robot poses. images, depths: (N,) paths (depths None where absent).
     pose_values: (N, k) the numbers as the source wrote them, in convention (the convention check
     reads them in others); T_base_flange: (N, 4, 4) as read in convention. joints: (N, n) radians in
-    the arm's order, or None."""
+    the arm's order, or None. pairing: which pose row each image took; notes: what the pose file's
+    reading found that a person should know (repeated poses)."""
 
     images: list[Path]
     depths: list[Path | None]
     pose_values: np.ndarray
     convention: PoseConvention
+    pairing: Pairing
     joints: np.ndarray | None = None
+    notes: tuple[str, ...] = ()
 
     @property
     def T_base_flange(self) -> np.ndarray:
@@ -77,61 +83,47 @@ def read_folder(
     convention: PoseConvention,
     depth_dir: str | Path | None = None,
     joint_file: JointFile | None = None,
+    pair_by: str | None = None,
+    time_tolerance_s: float = 0.02,
+    image_time_unit: str = "s",
 ) -> LayoutFrames:
-    """An image folder, its pose file and optionally depth images and a joint file (module doc)."""
+    """An image folder, its pose file and optionally depth images and a joint file (module doc),
+    paired by pair_by (hec.estimator.io.pairing)."""
     images_dir = Path(images_dir)
     if not images_dir.is_dir():
         raise LayoutError(f"{images_dir}: no such image folder")
-    names, values = read_pose_values(pose_file)
-    on_disk = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if any(n is not None for n in names):
-        images = []
-        for row, name in enumerate(names):
-            if name is None or not (images_dir / name).is_file():
-                raise LayoutError(
-                    f"{pose_file}: pose {row} names image {name!r}, which is not in {images_dir}"
-                )
-            images.append(images_dir / name)
-        unposed = sorted({p.name for p in on_disk} - {p.name for p in images})
-        if unposed:
-            raise LayoutError(
-                f"{images_dir}: images without poses in {pose_file}: {', '.join(unposed[:5])}"
-                + (f" and {len(unposed) - 5} more" if len(unposed) > 5 else "")
-            )
-    elif len(on_disk) != len(values):
-        raise LayoutError(
-            f"{images_dir} has {len(on_disk)} images but {pose_file} {len(values)} poses (and no 'image' "
-            "column to match them by name)"
-        )
-    else:
-        images = on_disk
+    table = read_number_table(pose_file)
+    on_disk = [p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
+    if not on_disk:
+        raise LayoutError(f"{images_dir}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    pairing = pair_images(on_disk, table, pair_by, time_tolerance_s, image_time_unit)
+    values = table.values[pairing.rows]
     poses_from_values(values, convention, str(pose_file))  # the numbers must read in the convention
-    joints = None if joint_file is None else _joints(joint_file, images)
-    return LayoutFrames(images, _depths(images, depth_dir), values, convention, joints)
+    joints = None if joint_file is None else _joints(joint_file, pairing, len(table.values))
+    depths = _depths(pairing.images, depth_dir)
+    return LayoutFrames(pairing.images, depths, values, convention, pairing, joints, tuple(table.notes))
 
 
-def _joints(joint_file: JointFile, images: list[Path]) -> np.ndarray:
-    """(N, n) radians in the arm's order, row i for images[i]: by the joint file's image names, else
-    in its row order."""
+def _joints(joint_file: JointFile, pairing: Pairing, pose_rows: int) -> np.ndarray:
+    """(N, n) radians in the arm's order, row i for pairing.images[i]: by the joint file's image names,
+    else its rows paired as the pose file's pose_rows rows."""
     if joint_file.unit not in ("rad", "deg"):
         raise LayoutError(f"{joint_file.path}: joint unit must be rad or deg, got {joint_file.unit!r}")
-    names, values = read_pose_values(joint_file.path, field="joints")
-    if any(n is not None for n in names):
-        rows = {name: row for name, row in zip(names, values, strict=True)}
+    table = read_number_table(joint_file.path, field="joints")
+    images = pairing.images
+    if table.names is not None:
+        rows = dict(zip(table.names, table.values, strict=True))
         missing = [p.name for p in images if p.name not in rows]
         if missing:
             raise LayoutError(f"{joint_file.path}: no joints for image {', '.join(missing[:5])}")
         values = np.array([rows[p.name] for p in images])
-    elif len(values) != len(images):
+    elif len(table.values) != pose_rows:
         raise LayoutError(
-            f"{joint_file.path} has {len(values)} rows of joints but there are {len(images)} images (and no "
-            "'image' column to match them by name)"
+            f"{joint_file.path} has {len(table.values)} rows of joints but the pose file {pose_rows} "
+            "(and no 'image' column to match them by name)"
         )
-    bad = ~np.isfinite(values).all(axis=1)
-    if bad.any():
-        raise LayoutError(
-            f"{joint_file.path}: the joints of image {images[int(np.argmax(bad))].name} are not finite"
-        )
+    else:
+        values = table.values[pairing.rows]
     values = np.radians(values) if joint_file.unit == "deg" else values
     if joint_file.order != "arm":
         if values.shape[1] != 6:
@@ -144,14 +136,28 @@ def _joints(joint_file: JointFile, images: list[Path]) -> np.ndarray:
 
 
 def _depths(images: list[Path], depth_dir: str | Path | None) -> list[Path | None]:
-    """The depth image of each image (same stem, .png) in depth_dir, or None without depth_dir."""
+    """The depth image of each image (same stem, .png or .npy) in depth_dir, or None without
+    depth_dir."""
     if depth_dir is None:
         return [None] * len(images)
     depth_dir = Path(depth_dir)
-    depths = [depth_dir / f"{image.stem}.png" for image in images]
-    missing = [d.name for d in depths if not d.is_file()]
+    if not depth_dir.is_dir():
+        raise LayoutError(f"{depth_dir}: no such depth folder")
+    depths, missing = [], []
+    for image in images:
+        found = [depth_dir / f"{image.stem}{suffix}" for suffix in DEPTH_SUFFIXES]
+        found = [d for d in found if d.is_file()]
+        if len(found) > 1:
+            raise LayoutError(
+                f"{depth_dir}: two depth files for {image.name}: {found[0].name} and {found[1].name}"
+            )
+        depths.append(found[0] if found else None)
+        if not found:
+            missing.append(image.stem)
     if missing:
-        raise LayoutError(f"{depth_dir}: no depth image for {', '.join(missing[:5])}")
+        raise LayoutError(
+            f"{depth_dir}: no depth image ({' or '.join(DEPTH_SUFFIXES)}) for {', '.join(missing[:5])}"
+        )
     return depths
 
 
@@ -182,27 +188,48 @@ def write_folder(
 
 
 def read_visp(folder: str | Path) -> LayoutFrames:
-    """ViSP's hand-eye layout (module doc)."""
+    """ViSP's hand-eye layout (module doc): each pose file N (``pose_fPe_N.yaml``, or any YAML file
+    whose name holds "pose" and ends in its number) with the image whose name ends in the same
+    number (``image-N.png``, or any image file)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise LayoutError(f"{folder}: no such folder")
-    numbered = sorted(
-        (int(m.group(1)), p) for p in folder.iterdir() if (m := _VISP_POSE.match(p.name)) is not None
-    )
-    if not numbered:
+    poses = _numbered(folder, (".yaml", ".yml"), "pose")
+    if not poses:
         raise LayoutError(f"{folder}: no pose_fPe_N.yaml files (ViSP's hand-eye layout)")
-    images, values = [], []
-    for n, pose_path in numbered:
-        image = folder / f"image-{n}.png"
-        if not image.is_file():
-            raise LayoutError(f"{pose_path}: its image {image.name} is missing")
-        images.append(image)
-        values.append(_visp_pose(pose_path))
-    poses = {n for n, _ in numbered}
-    unposed = sorted(p.name for p in folder.glob("image-*.png") if int(p.stem.split("-")[1]) not in poses)
+    images = _numbered(folder, IMAGE_SUFFIXES, "image")
+    missing = [poses[n].name for n in poses if n not in images]
+    if missing:
+        raise LayoutError(f"{folder}: no image numbered as pose {', '.join(missing[:5])}")
+    unposed = [images[n].name for n in images if n not in poses]
     if unposed:
-        raise LayoutError(f"{folder}: images without a pose_fPe file: {', '.join(unposed[:5])}")
-    return LayoutFrames(images, [None] * len(images), np.array(values), VISP_CONVENTION)
+        raise LayoutError(f"{folder}: images without a pose file: {', '.join(unposed[:5])}")
+    numbers = sorted(poses)
+    values = np.array([_visp_pose(poses[n]) for n in numbers])
+    pairing = Pairing(
+        "number", [images[n] for n in numbers], list(range(len(numbers))), [poses[n].name for n in numbers]
+    )
+    return LayoutFrames(pairing.images, [None] * len(numbers), values, VISP_CONVENTION, pairing)
+
+
+def _numbered(folder: Path, suffixes: tuple[str, ...], what: str) -> dict[int, Path]:
+    """The files of folder with one of suffixes by the number their name ends in; a number taken
+    twice is refused, naming both files."""
+    found: dict[int, Path] = {}
+    for path in sorted(folder.iterdir(), key=lambda p: natural_key(p.name)):
+        match = _TRAILING_NUMBER.search(path.stem)
+        if path.suffix.lower() not in suffixes or not path.is_file() or match is None:
+            continue
+        if what == "pose" and "pose" not in path.stem.lower():
+            continue
+        number = int(match.group(1))
+        if number in found:
+            raise LayoutError(
+                f"{folder}: {found[number].name} and {path.name} are both {what} {number}; "
+                "keep one (or rename the other)"
+            )
+        found[number] = path
+    return found
 
 
 def _visp_pose(path: Path) -> list[float]:

@@ -12,16 +12,13 @@ Angles in ``rad`` or ``deg`` (rotvec and Euler), lengths in ``m`` or ``mm``. Dir
 ``base-to-flange``: each pose is T_base_flange, the flange in the base frame (UR's and ROS tf's
 base -> tool0); ``flange-to-base``: each is its inverse, T_flange_base.
 
-CSV files have a header row; a column named ``image`` (or ``frame``) names the pose's image, the
-others in order are the pose's numbers (their names are free). JSON files hold a list of
-``{"image": NAME, "pose": [numbers]}`` or an object ``{NAME: [numbers], ...}``. A joint file is
-read the same way (``"joints"`` for ``"pose"``), one row of joint angles per image.
+The files (CSV with or without a header, JSON, numpy) are read as hec.estimator.io.pose_table
+says: a column named ``image`` names the pose's image, the others in order are the pose's numbers
+(their names are free). A joint file is read the same way, one row of joint angles per image.
 """
 
 from __future__ import annotations
 
-import csv
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,20 +26,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hec.estimator.geometry.transforms import invert
+from hec.estimator.io.pose_table import PoseFileError, read_number_table
 
 EULER_SEQUENCES = tuple(
     s for case in (str.lower, str.upper) for s in map(case, ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx"))
 )
 ROTATIONS = ("quat-wxyz", "quat-xyzw", "rotvec", "matrix", *(f"euler-{s}" for s in EULER_SEQUENCES))
 DIRECTIONS = ("base-to-flange", "flange-to-base")
-NAME_COLUMNS = ("image", "frame")
 # A rotation matrix whose R^T R is off identity by more than this is not one.
 ORTHONORMAL_TOLERANCE = 1e-4
 UNIT_QUATERNION_TOLERANCE = 1e-3
-
-
-class PoseFileError(ValueError):
-    """A pose file, or a convention, that cannot be read; the message names the file and field."""
 
 
 @dataclass(frozen=True)
@@ -85,8 +78,9 @@ def poses_from_values(values: np.ndarray, convention: PoseConvention, where: str
     values = np.asarray(values, dtype=np.float64)
     k = convention.values_per_pose
     if values.ndim != 2 or values.shape[1] != k:
+        hint = " (4x4 matrices? pass --rotation matrix)" if values.ndim == 2 and values.shape[1] == 16 else ""
         raise PoseFileError(
-            f"{where}: a {convention.rotation} pose has {k} numbers, got shape {values.shape}"
+            f"{where}: a {convention.rotation} pose has {k} numbers, got shape {values.shape}{hint}"
         )
     bad = ~np.isfinite(values).all(axis=1)
     if bad.any():
@@ -155,76 +149,8 @@ def _check_matrices(T: np.ndarray, where: str) -> None:
         )
 
 
-def read_pose_values(path: str | Path, field: str = "pose") -> tuple[list[str | None], np.ndarray]:
-    """The image names (None where the file gives none) and the (N, k) numbers of a CSV or JSON
-    pose file, or joint file with field "joints" (module doc); errors name the file, the row and
-    the field."""
-    path = Path(path)
-    if not path.is_file():
-        raise PoseFileError(f"{path}: {'pose' if field == 'pose' else 'joint'} file not found")
-    if path.suffix.lower() == ".json":
-        return _read_json(path, field)
-    return _read_csv(path)
-
-
-def _read_csv(path: Path) -> tuple[list[str | None], np.ndarray]:
-    with open(path, newline="") as f:
-        rows = [r for r in csv.reader(f) if r and any(cell.strip() for cell in r)]
-    if len(rows) < 2:
-        raise PoseFileError(f"{path}: expected a header row and at least one pose")
-    header = [h.strip() for h in rows[0]]
-    name_column = next((i for i, h in enumerate(header) if h.lower() in NAME_COLUMNS), None)
-    names: list[str | None] = []
-    values = []
-    for line, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise PoseFileError(f"{path}: line {line} has {len(row)} fields, the header {len(header)}")
-        numbers = []
-        for column, cell in enumerate(row):
-            if column == name_column:
-                continue
-            try:
-                numbers.append(float(cell))
-            except ValueError:
-                raise PoseFileError(
-                    f"{path}: line {line}, column '{header[column]}': not a number: {cell!r}"
-                ) from None
-        names.append(row[name_column].strip() if name_column is not None else None)
-        values.append(numbers)
-    return names, np.array(values)
-
-
-def _read_json(path: Path, field: str) -> tuple[list[str | None], np.ndarray]:
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise PoseFileError(f"{path}: not valid JSON ({exc})") from None
-    if isinstance(data, dict):
-        entries = [{"image": k, field: v} for k, v in data.items()]
-    elif isinstance(data, list):
-        entries = data
-    else:
-        raise PoseFileError(
-            f"{path}: expected a list of {{'image', '{field}'}} or an object of {field} lists"
-        )
-    names: list[str | None] = []
-    values = []
-    for i, entry in enumerate(entries):
-        row = entry.get(field) if isinstance(entry, dict) else None
-        if not isinstance(row, list) or not all(isinstance(v, int | float) for v in np.ravel(row).tolist()):
-            raise PoseFileError(
-                f"{path}: entry {i}: field '{field}' should be a list of numbers, got {row!r}"
-            )
-        names.append(entry.get("image"))
-        values.append(np.ravel(row).tolist())
-    if not values or len({len(v) for v in values}) != 1:
-        raise PoseFileError(
-            f"{path}: every entry's '{field}' must have the same count of numbers (and there must be one)"
-        )
-    return names, np.array(values, dtype=np.float64)
-
-
-def read_pose_file(path: str | Path, convention: PoseConvention) -> tuple[list[str | None], np.ndarray]:
-    """The image names and the (N, 4, 4) T_base_flange of a pose file in a convention."""
-    names, values = read_pose_values(path)
-    return names, poses_from_values(values, convention, where=str(path))
+def read_pose_file(path: str | Path, convention: PoseConvention) -> tuple[list[str] | None, np.ndarray]:
+    """The image names (None without an image column) and the (N, 4, 4) T_base_flange of a pose
+    file (hec.estimator.io.pose_table) in a convention."""
+    table = read_number_table(path)
+    return table.names, poses_from_values(table.values, convention, where=str(path))

@@ -22,13 +22,14 @@ from hec.estimator.io.convention_check import TRACKING_DIRECTIONS, check_pose_pa
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
 from hec.estimator.io.layouts import JointFile, LayoutError, read_easy_handeye_samples, read_folder, read_visp
+from hec.estimator.io.pairing import PAIR_BY, TIME_UNITS, PairingError
 from hec.estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.targets.kinds import find_board
 
 LAYOUTS = ("folder", "visp", "easy_handeye2")
-IMPORT_ERRORS = (LayoutError, PoseFileError, IntrinsicsFileError)
+IMPORT_ERRORS = (LayoutError, PoseFileError, PairingError, IntrinsicsFileError)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -49,7 +50,31 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar=("FX", "FY", "CX", "CY", "WIDTH", "HEIGHT"),
         help="intrinsics as numbers instead of --intrinsics (pixels; no distortion)",
     )
-    p.add_argument("--poses", type=Path, help="folder layout: the pose file (CSV with a header, or JSON)")
+    p.add_argument(
+        "--poses",
+        type=Path,
+        help="folder layout: the pose file (CSV with or without a header, JSON, .npy/.npz)",
+    )
+    p.add_argument(
+        "--pair-by",
+        choices=PAIR_BY,
+        help="how images pair with poses: name (the pose file's image column), number (the number in each "
+        "image name, natural order), time (nearest time, the pose file's time column), order (name "
+        "order); default: name if the pose file has an image column, else number",
+    )
+    p.add_argument(
+        "--time-tolerance",
+        type=arguments.positive,
+        default=0.02,
+        metavar="S",
+        help="--pair-by time: the largest image-to-pose time gap, seconds (default %(default)s)",
+    )
+    p.add_argument(
+        "--image-time-unit",
+        choices=tuple(TIME_UNITS),
+        default="s",
+        help="--pair-by time: the unit of the number in the image names (default %(default)s)",
+    )
     p.add_argument("--rotation", default="quat-wxyz", choices=ROTATIONS, help="default: %(default)s")
     p.add_argument("--angle-unit", default="rad", choices=("rad", "deg"), help="default: %(default)s")
     p.add_argument("--length-unit", default="m", choices=("m", "mm"), help="default: %(default)s")
@@ -73,7 +98,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="a UR arm's six joints: the arm's order (base first) or the ROS driver's /joint_states "
         "(elbow first); default: %(default)s",
     )
-    p.add_argument("--depth", type=Path, help="folder layout: 16-bit depth PNGs named as the images")
+    p.add_argument(
+        "--depth", type=Path, help="folder layout: 16-bit depth PNGs (or .npy) named as the images"
+    )
     p.add_argument(
         "--depth-scale", type=arguments.positive, default=0.001, help="metres per depth unit (default 0.001)"
     )
@@ -110,11 +137,23 @@ def run(args: argparse.Namespace) -> int:
             joint_file = (
                 None if args.joints is None else JointFile(args.joints, args.joint_unit, args.joint_order)
             )
-            frames = read_folder(args.source, args.poses, _convention(args), args.depth, joint_file)
+            frames = read_folder(
+                args.source,
+                args.poses,
+                _convention(args),
+                args.depth,
+                joint_file,
+                args.pair_by,
+                args.time_tolerance,
+                args.image_time_unit,
+            )
             sources = [args.source, args.poses] + [p for p in (args.depth, args.joints) if p]
         else:
-            if args.joints is not None:
-                raise ValueError("--joints is for the folder layout (ViSP's layout has no joints)")
+            if args.joints is not None or args.pair_by is not None:
+                raise ValueError(
+                    "--joints and --pair-by are for the folder layout (ViSP's pairs each image with the "
+                    "pose file of its number, and has no joints)"
+                )
             joint_file, frames = None, read_visp(args.source)
             sources = [args.source]
         extra = {"robot_model": args.robot_model} if args.robot_model else {}
@@ -130,6 +169,9 @@ def run(args: argparse.Namespace) -> int:
         )
     except IMPORT_ERRORS as exc:
         raise ValueError(str(exc)) from None
+    print(frames.pairing.describe())
+    for note in frames.notes:
+        print(f"note: {note}")
     depth = sum(d is not None for d in frames.depths)
     joints = "" if frames.joints is None else f", {frames.joints.shape[1]} joints each,"
     print(
