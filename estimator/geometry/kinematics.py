@@ -36,28 +36,56 @@ class URKinematics:
 _HALF_PI = np.pi / 2
 _LIMITS = ((-2 * np.pi,) * 2 + (-np.pi,) + (-2 * np.pi,) * 3, (2 * np.pi,) * 2 + (np.pi,) + (2 * np.pi,) * 3)
 
-UR5 = URKinematics(
-    "ur5",
-    d=(0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823),
-    a=(0.0, -0.425, -0.39225, 0.0, 0.0, 0.0),
-    alpha=(_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
-    q_lower=_LIMITS[0],
-    q_upper=_LIMITS[1],
-)
-UR5E = URKinematics(
-    "ur5e",
-    d=(0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
-    a=(0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
-    alpha=(_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
-    q_lower=_LIMITS[0],
-    q_upper=_LIMITS[1],
-)
+
+def _ur(name: str, d1: float, a2: float, a3: float, d4: float, d5: float, d6: float) -> URKinematics:
+    """A UR arm from the six lengths of UR's published DH table (the twists are the same on all)."""
+    return URKinematics(
+        name,
+        d=(d1, 0.0, 0.0, d4, d5, d6),
+        a=(0.0, a2, a3, 0.0, 0.0, 0.0),
+        alpha=(_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
+        q_lower=_LIMITS[0],
+        q_upper=_LIMITS[1],
+    )
+
+
+# UR's published DH tables. The simulated cell has MJCF of the UR5 and UR5e only; the other arms
+# serve imports, whose flange poses may be computed from the joints.
+UR5 = _ur("ur5", 0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823)
+UR5E = _ur("ur5e", 0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996)
+UR3 = _ur("ur3", 0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819)
+UR10 = _ur("ur10", 0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922)
+UR3E = _ur("ur3e", 0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921)
+UR10E = _ur("ur10e", 0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655)
+UR16E = _ur("ur16e", 0.1807, -0.4784, -0.36, 0.17415, 0.11985, 0.11655)
+# The arms of the simulated and the real cell (models/ has their MJCF), and every arm whose
+# kinematics hec knows (imports and calibrations of recorded data).
 ROBOTS = {k.name: k for k in (UR5, UR5E)}
+ARMS = {k.name: k for k in (UR3, UR5, UR10, UR3E, UR5E, UR10E, UR16E)}
 # The orders a UR arm's six joint angles are written in: the arm's own (base, shoulder, elbow,
 # wrist 1-3) and the ROS driver's /joint_states (names sorted: elbow, shoulder_lift, shoulder_pan,
 # wrist 1-3). Swapping the first and third angle turns either into the other.
 JOINT_ORDERS = ("arm", "ros-driver")
 _DRIVER_SWAP = np.array([2, 1, 0, 3, 4, 5])
+
+
+def arm_dict(kin: URKinematics) -> dict:
+    """The DH table of an arm as dataset.json's 'robot_dh' holds it (metres, radians)."""
+    return {
+        "d": list(kin.d),
+        "a": list(kin.a),
+        "alpha": list(kin.alpha),
+        "theta_offset": list(kin.theta_offset),
+    }
+
+
+def arm_from_dict(name: str, data: dict) -> URKinematics:
+    """The arm of an arm_dict (limits: +-2 pi on every joint); raises KeyError, TypeError or
+    ValueError on a malformed one."""
+    rows = [tuple(float(v) for v in data[key]) for key in ("d", "a", "alpha", "theta_offset")]
+    if any(len(row) != 6 for row in rows):
+        raise ValueError("every row of a DH table has 6 numbers")
+    return URKinematics(name, rows[0], rows[1], rows[2], (-2 * np.pi,) * 6, (2 * np.pi,) * 6, rows[3])
 
 
 def joints_in_arm_order(joints: np.ndarray, order: str) -> np.ndarray:

@@ -28,14 +28,16 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from hec.estimator.common.files import write_atomic
-from hec.estimator.geometry.kinematics import joints_in_arm_order
+from hec.estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
 from hec.estimator.geometry.transforms import make_transform
 from hec.estimator.io.pairing import Pairing, natural_key, pair_images
 from hec.estimator.io.pose_file import PoseConvention, poses_from_values, values_from_poses
-from hec.estimator.io.pose_table import IMAGE_SUFFIXES, read_number_table
+from hec.estimator.io.pose_table import IMAGE_SUFFIXES, NumberTable, read_number_table
 from hec.estimator.observe.pose_pairs import PosePair
 
 DEPTH_SUFFIXES = (".png", ".npy")
+# A UR arm's joints by the names the ROS driver gives them, in the arm's order.
+UR_JOINT_NAMES = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
 VISP_CONVENTION = PoseConvention(
     rotation="rotvec", angle_unit="rad", length_unit="m", direction="base-to-flange"
 )
@@ -79,37 +81,58 @@ class LayoutFrames:
 
 def read_folder(
     images_dir: str | Path,
-    pose_file: str | Path,
+    pose_file: str | Path | None,
     convention: PoseConvention,
     depth_dir: str | Path | None = None,
     joint_file: JointFile | None = None,
     pair_by: str | None = None,
     time_tolerance_s: float = 0.02,
     image_time_unit: str = "s",
+    kinematics: URKinematics | None = None,
 ) -> LayoutFrames:
     """An image folder, its pose file and optionally depth images and a joint file (module doc),
-    paired by pair_by (hec.estimator.io.pairing)."""
+    paired by pair_by (hec.estimator.io.pairing). Without a pose file, the flange poses are the
+    joint file's angles through kinematics (T_base_flange = forward(kinematics, q), in the matrix
+    convention)."""
     images_dir = Path(images_dir)
     if not images_dir.is_dir():
         raise LayoutError(f"{images_dir}: no such image folder")
-    table = read_number_table(pose_file)
+    if pose_file is None and (joint_file is None or kinematics is None):
+        raise LayoutError(
+            "without a pose file, the flange poses come from the joints: give both joints and the arm"
+        )
+    table = (
+        read_number_table(joint_file.path, "joints") if pose_file is None else read_number_table(pose_file)
+    )
     on_disk = [p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
     if not on_disk:
         raise LayoutError(f"{images_dir}: no images ({', '.join(IMAGE_SUFFIXES)})")
     pairing = pair_images(on_disk, table, pair_by, time_tolerance_s, image_time_unit)
-    values = table.values[pairing.rows]
-    poses_from_values(values, convention, str(pose_file))  # the numbers must read in the convention
-    joints = None if joint_file is None else _joints(joint_file, pairing, len(table.values))
+    if joint_file is None:
+        joints = None
+    else:
+        joint_table = table if pose_file is None else read_number_table(joint_file.path, "joints")
+        joints = _joints(joint_file, joint_table, pairing, len(table.values))
+    if pose_file is None:
+        if joints.shape[1] != 6:
+            raise LayoutError(
+                f"{joint_file.path}: {kinematics.name} has 6 joints, the file {joints.shape[1]} per row"
+            )
+        values = np.array([forward(kinematics, q).ravel() for q in joints])
+        convention = PoseConvention("matrix")
+    else:
+        values = table.values[pairing.rows]
+        poses_from_values(values, convention, str(pose_file))  # the numbers must read in the convention
     depths = _depths(pairing.images, depth_dir)
     return LayoutFrames(pairing.images, depths, values, convention, pairing, joints, tuple(table.notes))
 
 
-def _joints(joint_file: JointFile, pairing: Pairing, pose_rows: int) -> np.ndarray:
-    """(N, n) radians in the arm's order, row i for pairing.images[i]: by the joint file's image names,
-    else its rows paired as the pose file's pose_rows rows."""
+def _joints(joint_file: JointFile, table: NumberTable, pairing: Pairing, pose_rows: int) -> np.ndarray:
+    """(N, n) radians in the arm's order, row i for pairing.images[i], from the joint file's table: by
+    its image names, else its rows paired as the pose file's pose_rows rows; a header that names a UR
+    arm's joints as the ROS driver does decides their order."""
     if joint_file.unit not in ("rad", "deg"):
         raise LayoutError(f"{joint_file.path}: joint unit must be rad or deg, got {joint_file.unit!r}")
-    table = read_number_table(joint_file.path, field="joints")
     images = pairing.images
     if table.names is not None:
         rows = dict(zip(table.names, table.values, strict=True))
@@ -125,6 +148,9 @@ def _joints(joint_file: JointFile, pairing: Pairing, pose_rows: int) -> np.ndarr
     else:
         values = table.values[pairing.rows]
     values = np.radians(values) if joint_file.unit == "deg" else values
+    named = _named_joint_order(table.columns)
+    if named is not None:
+        return values[:, named]
     if joint_file.order != "arm":
         if values.shape[1] != 6:
             raise LayoutError(
@@ -133,6 +159,16 @@ def _joints(joint_file: JointFile, pairing: Pairing, pose_rows: int) -> np.ndarr
             )
         values = joints_in_arm_order(values, joint_file.order)
     return values
+
+
+def _named_joint_order(columns: list[str] | None) -> list[int] | None:
+    """The columns of a UR arm's six joints in the arm's order, when the header names them as the ROS
+    driver does (shoulder_pan_joint, ..., wrist_3_joint, with any prefix); else None."""
+    if columns is None or len(columns) != 6:
+        return None
+    lowered = [c.lower() for c in columns]
+    found = [[i for i, c in enumerate(lowered) if name in c] for name in UR_JOINT_NAMES]
+    return [f[0] for f in found] if all(len(f) == 1 for f in found) else None
 
 
 def _depths(images: list[Path], depth_dir: str | Path | None) -> list[Path | None]:

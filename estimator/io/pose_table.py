@@ -39,7 +39,8 @@ class NumberTable:
     """A table's rows. values: (N, k) numbers; names: (N,) image names or None without an image
     column; times_s: (N,) seconds or None without a time column; where: (N,) where each row is in
     the file, for messages ("line 5" of a CSV file, "entry 4" of JSON or numpy, from 0); layout: how
-    it was read, in words; notes: what a person should know (rows that repeat a pose)."""
+    it was read, in words; columns: (k,) the header's names of the numbers' columns, or None without
+    a header; notes: what a person should know (rows that repeat a pose)."""
 
     path: Path
     values: np.ndarray
@@ -47,6 +48,7 @@ class NumberTable:
     times_s: np.ndarray | None
     where: list[str]
     layout: str
+    columns: list[str] | None = None
     notes: list[str] = field(default_factory=list)
 
 
@@ -174,6 +176,7 @@ def _read_csv(path: Path) -> NumberTable:
         np.array(times) if time_column is not None else None,
         where,
         layout,
+        None if header is None else [h for i, h in enumerate(header) if i not in (name_column, time_column)],
     )
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.geometry.camera import CameraIntrinsics
-from hec.estimator.geometry.kinematics import ROBOTS, URKinematics
+from hec.estimator.geometry.kinematics import ARMS, URKinematics, arm_from_dict
 from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError
 from hec.estimator.observe.observations import FrameObservations, MarkerObservation
 from hec.estimator.targets.target import Target
@@ -57,12 +57,23 @@ def dataset_arm(dataset: Dataset) -> ReportedArm | None:
     (kinematics to tool0 then miss the TCP offset)."""
     meta = dataset.metadata
     name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
-    if name not in ROBOTS or meta.get("pose_frame", "flange") != "flange":
+    if meta.get("pose_frame", "flange") != "flange":
+        return None
+    if "robot_dh" in meta:  # an arm imported with its own DH table
+        try:
+            kinematics = arm_from_dict(str(name), meta["robot_dh"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DatasetError(
+                f"{dataset.root / 'dataset.json'}: field 'robot_dh' is malformed ({exc})"
+            ) from None
+    elif name in ARMS:
+        kinematics = ARMS[name]
+    else:
         return None
     if any(len(row["joints"]) != UR_JOINTS for row in dataset.rows):
         return None  # the joints are not the UR arm's six
     return ReportedArm(
-        ROBOTS[name], {i: np.asarray(row["joints"], float) for i, row in enumerate(dataset.rows)}
+        kinematics, {i: np.asarray(row["joints"], float) for i, row in enumerate(dataset.rows)}
     )
 
 

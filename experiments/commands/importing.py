@@ -16,8 +16,9 @@ import numpy as np
 
 from hec.commands import arguments
 from hec.estimator.geometry.camera import CameraIntrinsics
-from hec.estimator.geometry.kinematics import JOINT_ORDERS
+from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS, arm_dict
 from hec.estimator.geometry.transforms import invert
+from hec.estimator.io.arm_file import ArmFileError, read_arm
 from hec.estimator.io.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
@@ -29,7 +30,7 @@ from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.targets.kinds import find_board
 
 LAYOUTS = ("folder", "visp", "easy_handeye2")
-IMPORT_ERRORS = (LayoutError, PoseFileError, PairingError, IntrinsicsFileError)
+IMPORT_ERRORS = (LayoutError, PoseFileError, PairingError, IntrinsicsFileError, ArmFileError)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -104,7 +105,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--depth-scale", type=arguments.positive, default=0.001, help="metres per depth unit (default 0.001)"
     )
-    p.add_argument("--robot-model", choices=("ur5", "ur5e"), help="the arm, recorded in dataset.json")
+    p.add_argument(
+        "--robot-model",
+        metavar="ARM|FILE",
+        help=f"the arm ({', '.join(ARMS)}, or a DH table file: estimator/io/arm_file.py), recorded in "
+        "dataset.json; with --joints and no --poses, the flange poses are computed from the joints",
+    )
     p.add_argument("--no-check", action="store_true", help="skip detection and the convention check")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -131,9 +137,13 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--board is needed to import images: the board name or file they show")
         board = find_board(args.board)
         intrinsics = _intrinsics(args, required=True)
+        arm = None if args.robot_model is None else read_arm(args.robot_model)
         if args.layout == "folder":
-            if args.poses is None:
-                raise ValueError("--poses is needed with the folder layout")
+            if args.poses is None and (args.joints is None or arm is None):
+                raise ValueError(
+                    "the folder layout needs --poses, or --joints with --robot-model to compute the "
+                    "flange poses from the joints"
+                )
             joint_file = (
                 None if args.joints is None else JointFile(args.joints, args.joint_unit, args.joint_order)
             )
@@ -146,8 +156,9 @@ def run(args: argparse.Namespace) -> int:
                 args.pair_by,
                 args.time_tolerance,
                 args.image_time_unit,
+                arm,
             )
-            sources = [args.source, args.poses] + [p for p in (args.depth, args.joints) if p]
+            sources = [p for p in (args.source, args.poses, args.depth, args.joints) if p]
         else:
             if args.joints is not None or args.pair_by is not None:
                 raise ValueError(
@@ -156,7 +167,9 @@ def run(args: argparse.Namespace) -> int:
                 )
             joint_file, frames = None, read_visp(args.source)
             sources = [args.source]
-        extra = {"robot_model": args.robot_model} if args.robot_model else {}
+        extra = {} if arm is None else {"robot_model": arm.name}
+        if arm is not None and ARMS.get(arm.name) != arm:
+            extra["robot_dh"] = arm_dict(arm)
         out = import_images(
             frames,
             args.out,
@@ -174,10 +187,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     depth = sum(d is not None for d in frames.depths)
     joints = "" if frames.joints is None else f", {frames.joints.shape[1]} joints each,"
-    print(
-        f"imported {len(frames.images)} images ({depth} with depth){joints} with robot poses read as "
-        f"{_describe(frames.convention)} into {out}"
+    poses = (
+        f"flange poses computed from the joints with {arm.name}'s kinematics"
+        if args.layout == "folder" and args.poses is None
+        else f"robot poses read as {_describe(frames.convention)}"
     )
+    print(f"imported {len(frames.images)} images ({depth} with depth){joints} with {poses} into {out}")
     if not args.no_check:
         for line in check_import(out, args.quiet):
             print(line)
