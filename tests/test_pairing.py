@@ -175,3 +175,25 @@ def test_import_prints_and_records_the_pairing(numbered: dict, tmp_path: Path, c
     assert pairing["key"] == "number"
     assert pairing["pairs"][9] == ["img_10.png", "line 10"]
     assert _expected_order([Path(name) for name, _ in pairing["pairs"]]) == list(range(17))
+
+
+def test_numpy_depth_in_metres_and_the_depth_camera_are_imported(
+    numbered: dict, default_dataset: Path, tmp_path: Path
+) -> None:
+    source = load_dataset(default_dataset)
+    depth_dir = tmp_path / "depth"
+    depth_dir.mkdir()
+    for i in range(len(source)):
+        np.save(depth_dir / f"img_{i + 1}.npy", source.frame(i).depth_m)
+    poses = tmp_path / "poses.csv"
+    poses.write_text(_csv(numbered["values"]))
+    out = tmp_path / "dataset"
+    argv = ["import", "folder", str(numbered["images"]), "--poses", str(poses), "--out", str(out)]
+    argv += ["--board", "hec_8qr", "--intrinsics", str(numbered["camera"]), "--no-check"]
+    argv += ["--depth", str(depth_dir), "--depth-camera", "d405"]
+    assert main(argv) == 2  # metres read as millimetres: the depths are refused, naming the scale
+    assert not out.exists()
+    assert main([*argv, "--depth-scale", "1"]) == 0
+    imported = load_dataset(out)
+    assert imported.metadata["depth_noise"]["baseline_m"] == 0.018
+    np.testing.assert_allclose(imported.frame(3).depth_m, source.frame(3).depth_m, rtol=0, atol=1.01e-3)

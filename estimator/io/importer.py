@@ -20,6 +20,8 @@ from hec.estimator.observe.frames import Frame
 from hec.estimator.observe.pose_pairs import POSE_PAIRS_FILE, PosePair, pose_pairs_json
 from hec.estimator.targets.target import Target
 
+NUMPY_DEPTH_STEP_M = 1e-4
+
 
 def provenance(
     layout: str,
@@ -63,7 +65,11 @@ def import_images(
     """Write the layout's images, depths and poses as a hec dataset at out (nothing appears there
     unless it completes). record: the provenance; extra: more dataset.json fields (robot_model)."""
     T_base_flange = frames.T_base_flange
-    with DatasetWriter(out, intrinsics, board, depth_scale_m, "import", force=force) as writer:
+    # PNG depths are stored as they came; .npy depths (often float metres) in steps of 0.1 mm, which
+    # hold 6.5 m (farther pixels are stored as no depth).
+    numpy_depth = any(d is not None and d.suffix.lower() == ".npy" for d in frames.depths)
+    stored_scale_m = min(depth_scale_m, NUMPY_DEPTH_STEP_M) if numpy_depth else depth_scale_m
+    with DatasetWriter(out, intrinsics, board, stored_scale_m, "import", force=force) as writer:
         for i, (image, depth) in enumerate(zip(frames.images, frames.depths, strict=True)):
             writer.add_frame(
                 Frame(

@@ -75,6 +75,17 @@ class DepthNoiseModel:
         return cls(**{k: float(d[k]) for k in names if k in d})
 
 
+# The stereo depth cameras' nominal noise: the datasheets' baseline, and the focal length of a
+# 848x480 depth image from the datasheets' horizontal field of view (87 degrees: 447 px; the D415's
+# 65 degrees: 666 px); the D435 keeps DepthNoiseModel's defaults, which the simulated cell uses.
+DEPTH_CAMERAS = {
+    "d435": DepthNoiseModel(),
+    "d415": DepthNoiseModel(baseline_m=0.055, focal_px=666.0),
+    "d405": DepthNoiseModel(baseline_m=0.018, focal_px=447.0),
+    "d455": DepthNoiseModel(baseline_m=0.095, focal_px=447.0),
+}
+
+
 @dataclass(frozen=True)
 class MarkerDepth:
     """Plane under one marker in inverse depth: 1/z(u, v) = c0 + c1 (u - u0) + c2 (v - v0).

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from hec.commands import arguments
@@ -25,6 +26,8 @@ from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsic
 from hec.estimator.io.layouts import JointFile, LayoutError, read_easy_handeye_samples, read_folder, read_visp
 from hec.estimator.io.pairing import PAIR_BY, TIME_UNITS, PairingError
 from hec.estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
+from hec.estimator.io.pose_table import IMAGE_SUFFIXES
+from hec.estimator.observe.depth import DEPTH_CAMERAS, DepthNoiseModel
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.targets.kinds import find_board
@@ -106,6 +109,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--depth-scale", type=arguments.positive, default=0.001, help="metres per depth unit (default 0.001)"
     )
     p.add_argument(
+        "--depth-camera",
+        choices=tuple(DEPTH_CAMERAS),
+        help="the depth camera, for its depth noise (default: d435); recorded in dataset.json",
+    )
+    p.add_argument(
+        "--depth-noise",
+        type=float,
+        nargs=3,
+        metavar=("SUBPIXEL", "BASELINE_M", "FOCAL_PX"),
+        help="the depth's noise as a stereo camera's (sigma = z^2 subpixel / (focal baseline)), "
+        "instead of --depth-camera",
+    )
+    p.add_argument(
         "--robot-model",
         metavar="ARM|FILE",
         help=f"the arm ({', '.join(ARMS)}, or a DH table file: estimator/io/arm_file.py), recorded in "
@@ -168,6 +184,9 @@ def run(args: argparse.Namespace) -> int:
             joint_file, frames = None, read_visp(args.source)
             sources = [args.source]
         extra = {} if arm is None else {"robot_model": arm.name}
+        depth_noise = _depth_noise(args)
+        if depth_noise is not None:
+            extra["depth_noise"] = depth_noise.to_dict()
         if arm is not None and ARMS.get(arm.name) != arm:
             extra["robot_dh"] = arm_dict(arm)
         out = import_images(
@@ -213,6 +232,21 @@ def _directed(pairs: list[PosePair], args: argparse.Namespace) -> list[PosePair]
     ]
 
 
+def _depth_noise(args: argparse.Namespace) -> DepthNoiseModel | None:
+    """The depth noise the options name, or None (the D435's, which datasets default to)."""
+    if args.depth_camera is not None and args.depth_noise is not None:
+        raise ValueError("give --depth-camera or --depth-noise, not both")
+    if (args.depth_camera or args.depth_noise) and args.depth is None:
+        raise ValueError("--depth-camera and --depth-noise describe the depth images: give --depth DIR too")
+    if args.depth_noise is not None:
+        subpixel, baseline_m, focal_px = args.depth_noise
+        try:
+            return DepthNoiseModel(subpixel, baseline_m, focal_px)
+        except ValueError as exc:
+            raise ValueError(f"--depth-noise: {exc}") from None
+    return None if args.depth_camera is None else DEPTH_CAMERAS[args.depth_camera]
+
+
 def _convention(args: argparse.Namespace) -> PoseConvention:
     return PoseConvention(args.rotation, args.angle_unit, args.length_unit, args.pose_direction)
 
@@ -227,7 +261,7 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
     if args.intrinsics is not None and args.camera is not None:
         raise ValueError("give --intrinsics or --camera, not both")
     if args.intrinsics is not None:
-        return read_intrinsics(args.intrinsics)
+        return read_intrinsics(args.intrinsics, _first_image_size(args.source))
     if args.camera is not None:
         fx, fy, cx, cy, width, height = args.camera
         if width != int(width) or height != int(height):
@@ -235,6 +269,18 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
         return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
     if required:
         raise ValueError("the camera is needed to import images: give --intrinsics FILE or --camera")
+    return None
+
+
+def _first_image_size(folder: Path) -> tuple[int, int] | None:
+    """(width, height) of the first image in folder, for an intrinsics file that gives no size."""
+    if not folder.is_dir():
+        return None
+    for path in sorted(folder.iterdir()):
+        if path.suffix.lower() in IMAGE_SUFFIXES:
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is not None:
+                return image.shape[1], image.shape[0]
     return None
 
 
