@@ -17,7 +17,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             from hec.commands import table as commands
 
-            args = commands.build_parser().parse_args(argv)
+            argv = sys.argv[1:] if argv is None else argv
+            args = commands.build_parser(argv).parse_args(argv)
             started = args.command
             return commands.run(args)
         except KeyboardInterrupt as exc:  # Ctrl-C, or Terminated, where the command has no own message

@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 
 from hec.bench.robustness import CASES, format_case, run_cases
-from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import METHODS
 
 
 @pytest.mark.needs("sim")

@@ -42,3 +42,34 @@ def test_a_command_needing_the_simulator_names_the_extra(tmp_path: Path) -> None
     assert "pip install 'hec[sim]'" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "d").exists()
+
+
+def test_the_method_names_the_command_line_offers_are_the_registry() -> None:
+    """The parsers list the methods without loading the estimators; the names must be the registry's."""
+    from hec.estimator.solve.baselines import OPENCV_METHODS
+    from hec.estimator.solve.method_names import DEFAULT_METHOD, METHOD_NAMES, OPENCV_METHOD_NAMES
+    from hec.estimator.solve.methods import METHODS
+
+    assert tuple(METHODS) == METHOD_NAMES and DEFAULT_METHOD in METHOD_NAMES
+    assert tuple(OPENCV_METHODS) == OPENCV_METHOD_NAMES
+
+
+def _modules_loaded_by(*argv: str) -> set[str]:
+    code = (
+        "import sys\nfrom hec.cli import main\n"
+        f"try:\n    main({list(argv)!r})\nexcept SystemExit:\n    pass\n"
+        "print('\\n'.join(sys.modules))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return set(proc.stdout.split())
+
+
+def test_help_and_version_start_without_the_libraries() -> None:
+    """hec --help and --version load no numpy; hec export --help neither scipy's rotations nor an
+    estimator nor OpenCV (python -m hec.bench.startup measures the times)."""
+    for argv in (["--help"], ["--version"]):
+        assert "numpy" not in _modules_loaded_by(*argv), argv
+    loaded = _modules_loaded_by("export", "--help")
+    assert "hec.commands.export" in loaded
+    assert not {"scipy.spatial", "cv2", "hec.estimator.solve.methods", "hec.estimator.solve.problem"} & loaded

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hec.commands import report as report_command
 from hec.estimator.geometry.lie import pose_minus
 from hec.estimator.geometry.transforms import pose_error
 from hec.estimator.observe.synthetic import SyntheticNoise
@@ -123,8 +124,8 @@ def built(rows: list[dict], tmp_path_factory: pytest.TempPathFactory) -> report.
 def _run(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="hec")
     sub = parser.add_subparsers(dest="command", required=True)
-    report.add_parser(sub)
-    return report.run(parser.parse_args(argv))
+    report_command.add_parser(sub)
+    return report_command.run(parser.parse_args(argv))
 
 
 def test_rows_read_back_typed(rows: list[dict], built: report.Report) -> None:

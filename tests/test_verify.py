@@ -18,7 +18,8 @@ from hec.estimator.geometry.lie import pose_minus, pose_plus
 from hec.estimator.geometry.waypoints import rotation_rich_waypoints
 from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 from hec.estimator.solve.calibration import MethodOptions
-from hec.estimator.solve.methods import DEFAULT_METHOD, run_method
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import run_method
 from hec.estimator.solve.noise_learning import learn_noise
 from hec.estimator.solve.pick_error import pick_error, true_pick_error_mm
 from hec.estimator.solve.problem import build_problem

@@ -14,7 +14,6 @@ flange poses (hec.sim.noise.perturb_flange_pose).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from hec.estimator.geometry.transforms import make_transform
 
@@ -76,6 +75,8 @@ def pose_plus_jacobian_rows(delta: np.ndarray) -> np.ndarray:
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """(3, 3) rotation -> rotation vector (3,), radians, angle in [0, pi]."""
+    from scipy.spatial.transform import Rotation  # loaded on first use: 0.2 s at start-up otherwise
+
     return Rotation.from_matrix(R).as_rotvec()
 
 

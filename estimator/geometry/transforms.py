@@ -8,7 +8,14 @@ Lengths are metres, angles radians.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+
+def _rotation() -> type:
+    """scipy's Rotation, imported on first use: scipy.spatial takes about 0.2 s to load, which every
+    command would otherwise pay at start-up (`hec export --help` included)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 
 def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -53,12 +60,12 @@ def pose_error(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 def transform_from_xyz_quat(xyz: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
     """Translation (3,) and unit quaternion (w, x, y, z) -> (4, 4)."""
     w, x, y, z = quat_wxyz
-    return make_transform(Rotation.from_quat([x, y, z, w]).as_matrix(), xyz)
+    return make_transform(_rotation().from_quat([x, y, z, w]).as_matrix(), xyz)
 
 
 def xyz_quat_from_transform(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(4, 4) -> translation (3,) and quaternion (w, x, y, z) with w >= 0."""
-    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+    x, y, z, w = _rotation().from_matrix(T[:3, :3]).as_quat()
     q = np.array([w, x, y, z])
     return T[:3, 3].copy(), q if w >= 0 else -q
 
@@ -68,14 +75,14 @@ def transform_from_xyz_rpy(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
 
     R = Rz(yaw) @ Ry(pitch) @ Rx(roll), rotations about the fixed axes x, y, z.
     """
-    return make_transform(Rotation.from_euler("xyz", rpy).as_matrix(), xyz)
+    return make_transform(_rotation().from_euler("xyz", rpy).as_matrix(), xyz)
 
 
 def rpy_from_transform(T: np.ndarray) -> np.ndarray:
     """(4, 4) -> roll-pitch-yaw (3,) radians, inverse of transform_from_xyz_rpy."""
-    return Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
+    return _rotation().from_matrix(T[:3, :3]).as_euler("xyz")
 
 
 def rotation_about(axis: str, angle: float) -> np.ndarray:
     """(3, 3) rotation by ``angle`` radians about the local 'x', 'y' or 'z' axis."""
-    return Rotation.from_euler(axis, angle).as_matrix()
+    return _rotation().from_euler(axis, angle).as_matrix()

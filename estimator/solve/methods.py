@@ -34,7 +34,6 @@ METHODS: dict[str, Method] = {
         for name in OPENCV_METHODS
     },
 }
-DEFAULT_METHOD = "ekf"
 # The methods that model the noise (and so learn it with options.learn_noise); the OpenCV
 # baselines weigh every view alike.
 NOISE_MODEL_METHODS = ("seed-ekf", "ekf", "iekf", "ukf", "batch")

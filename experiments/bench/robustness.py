@@ -64,7 +64,8 @@ from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observatio
 from hec.estimator.solve.baselines import OPENCV_METHODS  # noqa: E402
 from hec.estimator.solve.calibration import MethodOptions  # noqa: E402
 from hec.estimator.solve.measurement_model import HandEyeState  # noqa: E402
-from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method  # noqa: E402
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import METHODS, needs_learned_noise, run_method  # noqa: E402
 from hec.estimator.solve.noise_learning import learn_noise  # noqa: E402
 from hec.estimator.solve.observability import observability  # noqa: E402
 from hec.estimator.solve.problem import CalibrationInputError, build_problem  # noqa: E402

@@ -9,7 +9,8 @@ from collections.abc import Callable
 import numpy as np
 
 from hec.estimator.solve.baselines import OPENCV_METHODS
-from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import METHODS
 
 
 def plot(

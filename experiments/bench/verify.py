@@ -52,7 +52,8 @@ from hec.estimator.io.calibration_file import learned_noise_levels  # noqa: E402
 from hec.estimator.observe.frames import Dataset  # noqa: E402
 from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
 from hec.estimator.solve.calibration import Calibration, MethodOptions  # noqa: E402
-from hec.estimator.solve.methods import DEFAULT_METHOD, run_method  # noqa: E402
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import run_method  # noqa: E402
 from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise  # noqa: E402
 from hec.estimator.solve.problem import (
     CalibrationInputError,

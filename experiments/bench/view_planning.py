@@ -84,7 +84,8 @@ from hec.estimator.geometry.waypoints import Waypoint, look_at_board, rotation_r
 from hec.estimator.observe.observations import FrameObservations  # noqa: E402
 from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations  # noqa: E402
 from hec.estimator.solve.calibration import MethodOptions  # noqa: E402
-from hec.estimator.solve.methods import DEFAULT_METHOD, run_method  # noqa: E402
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import run_method  # noqa: E402
 from hec.estimator.solve.problem import (
     CalibrationInputError,
     ReportedArm,

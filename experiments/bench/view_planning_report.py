@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from hec.estimator.solve.methods import DEFAULT_METHOD
+from hec.estimator.solve.method_names import DEFAULT_METHOD
 
 STRATEGIES = ("d-optimal", "worst-direction", "default", "random", "easy_handeye")
 PLANNERS = ("d-optimal", "worst-direction")

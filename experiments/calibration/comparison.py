@@ -7,7 +7,7 @@ import numpy as np
 from hec.calibration.loo import loo_cells, loo_table_note
 from hec.calibration.report import MethodFailure, Result, chi2_dof, format_vector, ground_truth_errors, rss
 from hec.estimator.solve.calibration import Calibration
-from hec.estimator.solve.methods import DEFAULT_METHOD
+from hec.estimator.solve.method_names import DEFAULT_METHOD
 
 
 def _cell(value: float | None, fmt: str, width: int) -> str:

@@ -19,7 +19,8 @@ from tqdm import tqdm
 from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.cross_validation import CrossValidation, leave_one_frame_out
-from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS, learned_setup
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import METHODS, learned_setup
 from hec.estimator.solve.problem import CalibrationProblem
 
 LOO_KEY = "cross_validation"

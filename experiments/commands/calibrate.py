@@ -35,7 +35,8 @@ from hec.estimator.io.dataset import load_dataset
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.calibration import MethodOptions, Prior
-from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS, needs_learned_noise, run_method
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import METHODS, needs_learned_noise, run_method
 from hec.estimator.solve.noise_learning import learn_noise
 from hec.estimator.solve.problem import (
     CalibrationInputError,

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hec.commands.verbs import HELP
 from hec.estimator.common.files import write_atomic
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.geometry.transforms import transform_from_xyz_quat
@@ -31,9 +32,9 @@ DEFAULT_LINK = "RealSense's standard optical rotation with ZERO offset (assumed:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from hec.estimator.solve.methods import METHODS
+    from hec.estimator.solve.method_names import METHOD_NAMES
 
-    p = sub.add_parser("export", help="write a calibration for ROS 2, URDF, easy_handeye2, YAML or JSON")
+    p = sub.add_parser("export", help=HELP["export"])
     p.add_argument("calibration", type=Path, help="a hec calibrate --json output")
     p.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=", ".join(FORMATS))
     p.add_argument("--parent", default="tool0", help="parent frame (default: %(default)s)")
@@ -57,7 +58,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
         help="the same as numbers, metres and quaternion x y z w (as tf2_echo prints them)",
     )
-    p.add_argument("--method", choices=list(METHODS), help="the result to export from a --method all file")
+    p.add_argument(
+        "--method", choices=list(METHOD_NAMES), help="the result to export from a --method all file"
+    )
     p.add_argument("--out", type=Path, metavar="FILE", help="write here (default: print)")
 
 

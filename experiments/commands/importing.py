@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from hec.commands import arguments
+from hec.commands.verbs import HELP
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS, arm_dict
 from hec.estimator.geometry.transforms import invert
@@ -37,10 +38,7 @@ IMPORT_ERRORS = (LayoutError, PoseFileError, PairingError, IntrinsicsFileError, 
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "import",
-        help="write a hec dataset from an image folder and pose file, ViSP's layout or easy_handeye2 samples",
-    )
+    p = sub.add_parser("import", help=HELP["import"])
     p.add_argument("layout", choices=LAYOUTS, help="the source's layout")
     p.add_argument("source", type=Path, help="image folder (folder, visp) or .samples file (easy_handeye2)")
     p.add_argument("--out", required=True, type=Path, help="dataset folder to create")

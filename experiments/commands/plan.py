@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hec.commands import arguments
+from hec.commands.verbs import HELP
 from hec.estimator.common.files import write_atomic
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
@@ -49,7 +50,7 @@ DEFAULT_MAX_VIEWS = 40
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plan", help="choose views by the information they add; write a waypoint file")
+    p = sub.add_parser("plan", help=HELP["plan"])
     p.add_argument("--out", required=True, type=Path, help="waypoint CSV to write")
     arguments.add_scenario(p)
     p.add_argument(

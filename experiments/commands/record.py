@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hec.commands import arguments
+from hec.commands.verbs import HELP
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
 from hec.estimator.geometry.waypoints import (
@@ -37,7 +38,8 @@ from hec.estimator.geometry.waypoints import (
 from hec.estimator.io.lock import FolderLockedError
 from hec.estimator.io.recorder import DatasetRecorder
 from hec.estimator.observe.frames import DatasetError, GroundTruth
-from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import METHODS
 from hec.estimator.solve.verify import spread_views
 from hec.session.adaptive import DEFAULT_MAX_VIEWS, POOL_CANDIDATES, AdaptiveViews, TargetError, sigma_target
 from hec.session.cell_config import CellConfig, CellConfigError, load_cell_config
@@ -63,11 +65,8 @@ class RecordError(ValueError):
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
-    for name, text in (
-        ("record", "record a calibration session on the real cell (or --sim) into a dataset"),
-        ("run", "record a calibration session, then calibrate it (OUT/calibration.json)"),
-    ):
-        p = sub.add_parser(name, help=text)
+    for name in ("record", "run"):
+        p = sub.add_parser(name, help=HELP[name])
         where = p.add_mutually_exclusive_group()
         where.add_argument("--robot", metavar="HOST", help="the UR controller's address (or the cell file's)")
         where.add_argument("--sim", action="store_true", help="run the session on the simulated cell")

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hec.commands.verbs import HELP
 from hec.regress.baseline_file import (
     DEFAULT_BASELINE,
     QUANTITIES,
@@ -241,10 +242,7 @@ def format_summary(results: list[TrialResult]) -> list[str]:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add the `regress` subcommand to the `hec` parser."""
-    p = sub.add_parser(
-        "regress",
-        help="render, detect and calibrate a small fixed scenario; compare the errors with the baseline",
-    )
+    p = sub.add_parser("regress", help=HELP["regress"])
     p.add_argument(
         "--trials",
         type=_positive,

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hec.commands.verbs import HELP
 from hec.estimator.common.jsonfile import read_json_object
 from hec.support.interrupts import interrupted_exit_code
 from hec.sweep.rows import DATASETS_DIR, META_FILE, ROWS_FILE, SweepError, load_rows, read_complete_rows
@@ -24,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add `hec sweep`."""
     p = sub.add_parser(
         "sweep",
-        help="run a grid of calibration trials (Monte-Carlo) from a sweep TOML file",
+        help=HELP["sweep"],
         description="Run a reproducible grid of calibration trials: every cell of the sweep file's grid, "
         "`trials` times, every method. Rows go to DIR/rows.csv as trials finish (DIR/sweep.json first).",
     )

@@ -4,35 +4,38 @@ them, with the signals taken first)."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-from hec.commands import arguments, importing, record, regress, sweep, teach
-from hec.commands import export as export_command
-from hec.commands import plan as plan_command
-from hec.commands import verify as verify_command
-from hec.estimator.io.calibration_file import CalibrationFileError
-from hec.estimator.observe.frames import DatasetError
-from hec.estimator.observe.observations import ObservationCacheError
-from hec.estimator.solve.problem import CalibrationInputError
-from hec.estimator.targets.target import BoardDefinitionError
+from hec.commands import arguments
+from hec.commands.verbs import HELP
 from hec.support.version import VERSION
-from hec.sweep import report
 
-USER_ERRORS = (
-    BoardDefinitionError,
-    CalibrationFileError,
-    DatasetError,
-    ObservationCacheError,
-    CalibrationInputError,
-    FileExistsError,
-    ValueError,
-    OSError,  # a file that cannot be read or written (missing, read-only or full file system)
-)
+
+def _user_errors() -> tuple[type[Exception], ...]:
+    """What a command reports as one line and exit code 2: bad input, named by the error."""
+    from hec.estimator.io.calibration_file import CalibrationFileError
+    from hec.estimator.observe.frames import DatasetError
+    from hec.estimator.observe.observations import ObservationCacheError
+    from hec.estimator.solve.problem import CalibrationInputError
+    from hec.estimator.targets.target import BoardDefinitionError
+
+    return (
+        BoardDefinitionError,
+        CalibrationFileError,
+        DatasetError,
+        ObservationCacheError,
+        CalibrationInputError,
+        FileExistsError,
+        ValueError,
+        OSError,  # a file that cannot be read or written (missing, read-only or full file system)
+    )
 
 
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="render a simulated calibration dataset")
+    p = sub.add_parser("simulate", help=HELP["simulate"])
     p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
     arguments.add_scenario(p)
     p.add_argument("--seed", type=arguments.seed, help="noise seed (default: the scenario's 'seed')")
@@ -46,9 +49,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 def _add_detect(sub: argparse._SubParsersAction) -> None:
     from hec.estimator.targets.qr import DEFAULT_PASSES
 
-    p = sub.add_parser(
-        "detect", help="detect the board in a dataset, cache the observations (DATASET/detections.json)"
-    )
+    p = sub.add_parser("detect", help=HELP["detect"])
     p.add_argument("dataset", type=Path, help="dataset folder")
     p.add_argument("--overlay", action="store_true", help="also write DATASET/overlay/NNNNNN.png")
     p.add_argument(
@@ -60,21 +61,18 @@ def _add_detect(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
-    from hec.estimator.solve.methods import DEFAULT_METHOD, METHODS
+    from hec.estimator.solve.method_names import DEFAULT_METHOD, METHOD_NAMES
 
-    p = sub.add_parser(
-        "calibrate",
-        help="estimate T_flange_cam (camera in the flange frame, OpenCV cam2gripper) from a dataset",
-    )
+    p = sub.add_parser("calibrate", help=HELP["calibrate"])
     p.add_argument(
         "dataset", type=Path, help="dataset folder (observations from its detections.json if valid)"
     )
     p.add_argument(
         "--method",
         default=DEFAULT_METHOD,
-        choices=[*METHODS, "all"],  # pose-pair datasets take ekf, iekf, batch and the OpenCV ones
+        choices=[*METHOD_NAMES, "all"],  # pose-pair datasets take ekf, iekf, batch and the OpenCV ones
         metavar="NAME|all",
-        help=f"{', '.join(METHODS)}, or all to compare them (default: %(default)s)",
+        help=f"{', '.join(METHOD_NAMES)}, or all to compare them (default: %(default)s)",
     )
     p.add_argument("--json", type=Path, metavar="OUT", help="also write the results to this JSON file")
     p.add_argument(
@@ -117,7 +115,7 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_board(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("board", help="write a true-scale printable board (PNG or PDF)")
+    p = sub.add_parser("board", help=HELP["board"])
     p.add_argument("--out", required=True, type=Path, help="board.pdf or board.png")
     p.add_argument("--board", default="hec_8qr", help="board name in models/boards/ or a board JSON file")
     lo, hi = arguments.DPI_RANGE
@@ -130,38 +128,75 @@ def _add_board(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "demo", help="the main job: simulate the default cell, detect, calibrate, report against ground truth"
-    )
+    p = sub.add_parser("demo", help=HELP["demo"])
     p.add_argument(
         "--out", type=Path, default=Path("runs/demo"), help="dataset folder (replaced if it exists)"
     )
     p.add_argument("--seed", type=arguments.seed, default=0)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _module_parser(module: str, function: str = "add_parser") -> Callable[[argparse._SubParsersAction], None]:
+    """Adds a verb's parser from its module, loaded only when that verb is the one run."""
+
+    def add(sub: argparse._SubParsersAction) -> None:
+        getattr(importlib.import_module(module), function)(sub)
+
+    return add
+
+
+# Each verb: what adds its parser (a module's add_parser, loaded only for the verb being run) and what
+# runs it. Their help is hec.commands.verbs.HELP, which `hec --help` lists without loading any.
+PARSERS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "demo": _add_demo,
+    "simulate": _add_simulate,
+    "detect": _add_detect,
+    "calibrate": _add_calibrate,
+    "board": _add_board,
+    "import": _module_parser("hec.commands.importing"),
+    "export": _module_parser("hec.commands.export"),
+    "plan": _module_parser("hec.commands.plan"),
+    "verify": _module_parser("hec.commands.verify"),
+    "sweep": _module_parser("hec.commands.sweep"),
+    "report": _module_parser("hec.commands.report"),
+    "regress": _module_parser("hec.commands.regress"),
+    "record": _module_parser("hec.commands.record", "add_parsers"),
+    "run": _module_parser("hec.commands.record", "add_parsers"),
+    "teach": _module_parser("hec.commands.teach"),
+}
+RUNNERS = {
+    "import": "hec.commands.importing",
+    "export": "hec.commands.export",
+    "plan": "hec.commands.plan",
+    "verify": "hec.commands.verify",
+    "sweep": "hec.commands.sweep",
+    "report": "hec.commands.report",
+    "regress": "hec.commands.regress",
+    "record": "hec.commands.record",
+    "run": "hec.commands.record",
+    "teach": "hec.commands.teach",
+    "calibrate": "hec.commands.calibrate",
+}
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The hec parser. Only the verb argv names (its first word that is a verb) gets its options;
+    the others are listed with their help, so `hec --help` and `hec VERB --help` load one command
+    at most. argv None: every verb gets its options (the whole command line, for documentation)."""
     parser = argparse.ArgumentParser(prog="hec", description="Eye-in-hand calibration testbench and tool.")
     parser.add_argument("--version", action="version", version=f"hec {VERSION}")
-    sub = parser.add_subparsers(dest="command", required=True)
-    _add_demo(sub)
-    _add_simulate(sub)
-    _add_detect(sub)
-    _add_calibrate(sub)
-    _add_board(sub)
-    importing.add_parser(sub)
-    export_command.add_parser(sub)
-    plan_command.add_parser(sub)
-    verify_command.add_parser(sub)
-    sweep.add_parser(sub)
-    report.add_parser(sub)
-    regress.add_parser(sub)
-    record.add_parsers(sub)
-    teach.add_parser(sub)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for verb in HELP:
+        if (argv is None or verb in argv[:1]) and verb not in sub.choices:
+            PARSERS[verb](sub)
+    for verb in HELP:
+        if verb not in sub.choices:
+            sub.add_parser(verb, help=HELP[verb])
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the command args name: its exit code (2 with a message on stderr for bad input)."""
+    user_errors = _user_errors()
     try:
         if args.command == "board":
             from hec.commands.printable import write_board
@@ -177,26 +212,11 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--passes {args.passes!r}: give at least one decoding pass, e.g. zxing@1")
             run_detect(args.dataset, args.overlay, passes, args.quiet)
             return 0
-        if args.command == "calibrate":
-            from hec.commands.calibrate import run as run_calibrate
-
-            return run_calibrate(args)
-        if args.command in ("export", "verify", "plan", "import"):
-            return {
-                "export": export_command,
-                "verify": verify_command,
-                "plan": plan_command,
-                "import": importing,
-            }[args.command].run(args)
-        if args.command in ("record", "run"):
-            return record.run(args)
-        if args.command == "teach":
-            return teach.run(args)
-        if args.command in ("sweep", "report", "regress"):
-            return {"sweep": sweep, "report": report, "regress": regress}[args.command].run(args)
+        if args.command in RUNNERS:
+            return importlib.import_module(RUNNERS[args.command]).run(args)
         from hec.commands.demo import run_simulate
 
         return run_simulate(args)
-    except USER_ERRORS as exc:
+    except user_errors as exc:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2

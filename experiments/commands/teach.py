@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hec.commands.verbs import HELP
 from hec.estimator.geometry.waypoints import JOINT_COLUMNS, WaypointFileError
 from hec.estimator.targets.kinds import detector_for, find_board
 from hec.estimator.targets.target import BoardDefinitionError, TargetDetector
@@ -36,7 +37,7 @@ PROMPT = "move the arm by hand, then Enter to store the pose, q to finish: "
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add `hec teach --out FILE.csv`."""
-    p = sub.add_parser("teach", help="store waypoints by moving the real arm by hand (UR teach mode)")
+    p = sub.add_parser("teach", help=HELP["teach"])
     p.add_argument("--robot", metavar="HOST", help="the UR controller's address (else robot.host of --cell)")
     p.add_argument(
         "--camera",

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hec.commands.verbs import HELP
 from hec.estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
 
 if TYPE_CHECKING:
@@ -20,14 +21,12 @@ EXIT_UNTESTED = 2
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from hec.estimator.solve.methods import METHODS
+    from hec.estimator.solve.method_names import METHOD_NAMES
 
-    p = sub.add_parser(
-        "verify", help="test whether a calibration still holds on a few new frames (has the camera moved?)"
-    )
+    p = sub.add_parser("verify", help=HELP["verify"])
     p.add_argument("calibration", type=Path, help="a hec calibrate --json output")
     p.add_argument("dataset", type=Path, help="dataset folder with the new frames (3 or more)")
-    p.add_argument("--method", choices=list(METHODS), help="the result to test in a --method all file")
+    p.add_argument("--method", choices=list(METHOD_NAMES), help="the result to test in a --method all file")
     p.add_argument("--json", type=Path, metavar="OUT", help="also write the verification to this JSON file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -30,7 +30,8 @@ from hec.estimator.observe.observations import (
     save_observations,
 )
 from hec.estimator.solve.calibration import Calibration, MethodOptions
-from hec.estimator.solve.methods import DEFAULT_METHOD, run_method
+from hec.estimator.solve.method_names import DEFAULT_METHOD
+from hec.estimator.solve.methods import run_method
 from hec.estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
 from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.qr import DetectorSettings

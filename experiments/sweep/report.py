@@ -17,12 +17,9 @@ per method, and one filter's convergence over the waypoints with its +-3 sigma b
 
 from __future__ import annotations
 
-import argparse
 import base64
 import html
 import json
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -313,41 +310,3 @@ component (translation along the flange axes, rotation about the camera axes).</
     report_path = out_dir / REPORT_FILE
     write_atomic(report_path, page.encode("utf-8"))
     return Report(report_path, written, images, summaries, missing)
-
-
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    """Add `hec report DIR`."""
-    p = sub.add_parser(
-        "report",
-        help="rebuild DIR/report.html (tables and plots) and DIR/plots/ from a sweep's saved rows",
-    )
-    p.add_argument("dir", type=Path, metavar="DIR", help="the --out folder of `hec sweep`")
-
-
-def run(args: argparse.Namespace) -> int:
-    """`hec report DIR`: 0 when written, 2 with a message on stderr when DIR has no usable rows."""
-    try:
-        report = build_report(args.dir)
-    except ReportError as exc:
-        print(f"hec: error: {exc}", file=sys.stderr)
-        return 2
-    _print_summary(report.summaries)
-    if report.missing:
-        print(f"warning: {report.missing}", file=sys.stderr)
-    print(
-        f"report: {report.html} ({report.images} images embedded; plots in {report.html.parent / PLOTS_DIR})"
-    )
-    return 0
-
-
-def _print_summary(summaries: Sequence[CellSummary]) -> None:
-    """A short terminal table: per cell and method the success and RMS errors with their ratio."""
-    print(
-        f"{'cell':12s} {'method':18s} {'ok':>7s} {'RMS mm':>9s} {'x CRB':>8s} {'RMS deg':>9s} {'x CRB':>8s}"
-    )
-    for s in summaries:
-        t, r = s.translation_mm, s.rotation_deg
-        print(
-            f"{s.cell[:12]:12s} {s.method[:18]:18s} {f'{s.ok}/{s.trials}':>7s} {fmt(t.rms):>9s} "
-            f"{fmt(t.ratio, '.3g'):>8s} {fmt(r.rms):>9s} {fmt(r.ratio, '.3g'):>8s}"
-        )
