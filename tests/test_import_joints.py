@@ -18,6 +18,7 @@ from hec.estimator.io.intrinsics_file import write_opencv_intrinsics
 from hec.estimator.io.layouts import JointFile, read_folder
 from hec.estimator.io.pose_file import PoseConvention
 from hec.estimator.solve.problem import dataset_arm
+from tests.test_pairing import copy_images
 
 # The ROS driver's /joint_states order (names sorted), with a robot prefix.
 DRIVER_NAMES = ("elbow", "shoulder_lift", "shoulder_pan", "wrist_1", "wrist_2", "wrist_3")
@@ -29,10 +30,7 @@ def joint_folder(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory
     """The default rendered dataset's images (frame_0.png ..) and its reported joints in the ROS
     driver's order under their joint names, in degrees."""
     root = tmp_path_factory.mktemp("joints")
-    source = load_dataset(default_dataset)
-    (root / "images").mkdir()
-    for i, row in enumerate(source.rows):
-        (root / "images" / f"frame_{i}.png").write_bytes((source.root / row["rgb"]).read_bytes())
+    source = copy_images(default_dataset, root / "images", "frame_{}.png")
     q = np.array([row["joints"] for row in source.rows])
     header = ",".join(f"ur_{name}_joint" for name in DRIVER_NAMES)
     rows = [",".join(repr(float(v)) for v in np.degrees(qi[DRIVER_COLUMNS])) for qi in q]

@@ -17,6 +17,7 @@ from hec.estimator.io.layouts import read_folder
 from hec.estimator.io.pairing import PairingError, natural_key
 from hec.estimator.io.pose_file import PoseConvention, PoseFileError, values_from_poses
 from hec.estimator.io.pose_table import read_number_table
+from hec.estimator.observe.frames import Dataset
 
 CONVENTION = PoseConvention("quat-wxyz")
 
@@ -26,10 +27,7 @@ def numbered(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) ->
     """The default rendered dataset's images as img_1.png .. img_17.png (no zero padding, so name
     order is not frame order), its camera as OpenCV YAML, and its poses in CONVENTION (17, 7)."""
     root = tmp_path_factory.mktemp("numbered")
-    source = load_dataset(default_dataset)
-    (root / "images").mkdir()
-    for i, row in enumerate(source.rows):
-        (root / "images" / f"img_{i + 1}.png").write_bytes((source.root / row["rgb"]).read_bytes())
+    source = copy_images(default_dataset, root / "images", "img_{}.png", first=1)
     T_base_flange = np.array([row["T_base_flange"] for row in source.rows])
     return {
         "root": root,
@@ -37,6 +35,16 @@ def numbered(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) ->
         "camera": write_opencv_intrinsics(root / "camera.yaml", source.intrinsics),
         "values": values_from_poses(T_base_flange, CONVENTION),
     }
+
+
+def copy_images(dataset: Path, folder: Path, name: str, first: int = 0) -> Dataset:
+    """Copy a dataset's colour images into folder as name.format(first), name.format(first + 1), ...;
+    returns the dataset."""
+    source = load_dataset(dataset)
+    folder.mkdir()
+    for i, row in enumerate(source.rows):
+        (folder / name.format(first + i)).write_bytes((source.root / row["rgb"]).read_bytes())
+    return source
 
 
 def _csv(values: np.ndarray, header: str | None = "x,y,z,qw,qx,qy,qz", sep: str = ",") -> str:
