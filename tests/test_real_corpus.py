@@ -141,3 +141,40 @@ def test_every_real_set_has_its_source_and_licence_and_stays_small() -> None:
         assert size < 5_000_000, f"{folder.name}: {size / 1e6:.1f} MB"
         images = list((folder / "images").iterdir())
         assert len(images) >= 10, folder.name
+
+
+def _table(real_set: RealSet, result: dict) -> str:
+    """The markdown table of one set's `hec calibrate --method all --json` output."""
+    left_out = "; ".join(result["frames_left_out"])
+    lines = [
+        f"### {real_set.name}",
+        "",
+        f"{result['frames_used']} frames used" + (f"; left out: {left_out}" if left_out else "") + ".",
+        "",
+        "| method | x mm | y mm | z mm | 1-sigma mm | residual px | LOO px | LOO mm | used/rejected |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for m in result["results"]:
+        if "error" in m:
+            lines.append(f"| {m['method']} | failed: {m['error'].split(' (')[0]} | | | | | | | |")
+            continue
+        t, loo, sigma = m["translation_mm"], m["leave_one_frame_out"], m["sigma_translation_mm"]
+        rss = f"{np.linalg.norm(sigma):.3f}" if sigma else "-"
+        loo_cells = f"{loo['rms_px']:.3f} | {loo['rms_mm']:.3f}" if loo else "not run | not run"
+        lines.append(
+            f"| {m['method']} | {t[0]:.3f} | {t[1]:.3f} | {t[2]:.3f} | {rss} | {m['residual_rms_px']:.3f} | "
+            f"{loo_cells} | {m['observations_used']}/{m['observations_rejected']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    # python -m tests.test_real_corpus: import every set and print `hec calibrate --method all` as the
+    # tables of tests/data/real/README.md.
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as temporary:
+        for real_set in SETS:
+            dataset = Path(temporary) / real_set.name
+            _import(real_set, dataset)
+            print(_table(real_set, _calibrate(dataset, "all")))
