@@ -8,13 +8,14 @@ from pathlib import Path
 
 from hec.cli import main
 from hec.estimator.geometry.waypoints import write_waypoint_file
-from hec.sim.scenario import Scenario
-from hec.sim.simulate import scenario_waypoints
 
 
 def scenario_file(folder: Path, views: int = 2, toml: str = "") -> Path:
     """folder/scenario.toml: the first views default views (a waypoint file beside it) plus more
     TOML."""
+    from hec.sim.scenario import Scenario  # the simulator loads only for the tests that render
+    from hec.sim.simulate import scenario_waypoints
+
     folder.mkdir(parents=True, exist_ok=True)
     write_waypoint_file(folder / "waypoints.csv", scenario_waypoints(Scenario())[:views])
     (folder / "scenario.toml").write_text('[trajectory]\nkind = "file"\nfile = "waypoints.csv"\n' + toml)

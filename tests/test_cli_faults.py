@@ -218,6 +218,7 @@ def test_a_board_whose_modules_are_too_small_at_this_dpi_is_refused(tmp_path: Pa
 # --- scenario files ------------------------------------------------------------------------------
 
 
+@pytest.mark.needs("sim")
 def test_a_binary_scenario_file_is_named(tmp_path: Path) -> None:
     (tmp_path / "s.toml").write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
     code, _, err = run_hec(

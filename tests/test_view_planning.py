@@ -157,6 +157,7 @@ def test_a_refused_candidate_is_skipped_and_never_offered_again() -> None:
     assert asked.count(free_choice[1].candidate) == 1 and len(steps) == 5
 
 
+@pytest.mark.needs("sim")
 def test_hec_plan_writes_planned_views_the_simulator_renders_and_calibrates(tmp_path: Path) -> None:
     """hec plan's 8 views (corners assumed at 0.02 px, as the renders give) predict less than the
     default 17 views do; rendered, detected and calibrated, the mount is within 0.3 mm / 0.03 deg
