@@ -234,7 +234,9 @@ def test_methods_whose_folds_would_take_too_long_are_not_cross_validated(
 def test_method_all_has_the_leave_one_frame_out_columns(
     dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Without the slow methods (batch's 17 folds alone take 15-30 s)."""
+    """Every method cross-validated in the same two models, side by side: the self-calibrated one (the
+    same for all, learned once on all frames) and the declared one. Without the slow methods (batch's
+    17 folds alone take 15-30 s)."""
     for name in ("iekf", "ukf", "batch"):
         monkeypatch.delitem(METHODS, name)
     out = tmp_path / "all.json"
@@ -247,12 +249,20 @@ def test_method_all_has_the_leave_one_frame_out_columns(
     rows = {line.split()[0]: line.split() for line in lines[header + 1 : header + 1 + len(METHODS)]}
     results = {r["method"]: r for r in json.loads(out.read_text())["results"]}
     # andreff and li, which fail on views at one distance, solve the default two-distance views.
+    models = set()
     for name in ("ekf", "seed-ekf", "opencv-park", "opencv-andreff", "opencv-li"):
-        loo = results[name]["leave_one_frame_out"]
-        assert loo["folds_run"] == 17
-        assert [float(v) for v in rows[name][9:11]] == pytest.approx([loo["rms_px"], loo["rms_mm"]], abs=6e-4)
-        assert loo["rms_mm"] < 1.0
-    assert "loo px, loo mm: leave-one-frame-out prediction RMS" in stdout
+        loo, declared = results[name]["leave_one_frame_out"], results[name]["leave_one_frame_out_declared"]
+        assert loo["folds_run"] == declared["folds_run"] == 17
+        cells = [loo["rms_px"], loo["rms_mm"], declared["rms_px"], declared["rms_mm"]]
+        assert [float(v) for v in rows[name][9:13]] == pytest.approx(cells, abs=6e-4)
+        assert loo["rms_mm"] < 1.0 and declared["rms_mm"] < 1.0
+        assert declared["model"] == "declared"
+        models.add(loo["model"])
+    assert len(models) == 1 and models.pop().startswith(
+        "self-calibrated on all frames, the held-out one included"
+    )
+    assert "loo, dec px and mm: leave-one-frame-out prediction RMS" in stdout
+    assert "every method's folds in the same model" in stdout
 
 
 def _with_loo(folds: list[FoldPrediction], skipped: list[SkippedFold]) -> Calibration:

@@ -79,7 +79,8 @@ class CrossValidation:
     """The LOO figures of one method. folds: per predicted frame, in problem order. rms_px, rms_mm:
     RMS over all predicted corners (NaN without folds); floor_px, floor_mm: the same RMS that the
     held-out views' own noise alone would give. board_source: where the folds' board came from.
-    time_s: all folds together."""
+    time_s: all folds together. model: what the folds calibrated with, in words ("declared", or
+    what was learned on all frames)."""
 
     folds: list[FoldPrediction]
     skipped: list[SkippedFold]
@@ -89,6 +90,7 @@ class CrossValidation:
     floor_mm: float
     board_source: str
     time_s: float
+    model: str = "declared"
 
     @property
     def folds_run(self) -> int:
@@ -111,6 +113,7 @@ class CrossValidation:
             "frames": [{k: getattr(f, k) for k in fields} for f in self.folds],
             "board_source": self.board_source,
             "time_s": self.time_s,
+            "model": self.model,
         }
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hec.calibration.loo import loo_cells, loo_table_note
+from hec.calibration.loo import LOO_DECLARED_KEY, loo_cells, loo_table_note
 from hec.calibration.report import MethodFailure, Result, chi2_dof, format_vector, ground_truth_errors, rss
 from hec.estimator.solve.calibration import Calibration
 from hec.estimator.solve.method_names import DEFAULT_METHOD
@@ -14,8 +14,9 @@ def _cell(value: float | None, fmt: str, width: int) -> str:
     return f"{'-':>{width}}" if value is None else f"{value:>{width}{fmt}}"
 
 
-def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str]) -> str:
-    """One table row. earlier: failure reason -> first method that gave it (updated here)."""
+def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str], declared: bool) -> str:
+    """One table row. earlier: failure reason -> first method that gave it (updated here); declared:
+    with the declared model's loo columns."""
     if isinstance(r, MethodFailure):
         reason = r.error.removeprefix(f"{r.method}: ")
         first = earlier.setdefault(reason, r.method)
@@ -25,7 +26,8 @@ def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str
     row += f" {_cell(rss(r.sigma_translation_mm), '.4f', 10)} {_cell(rss(r.sigma_rotation_deg), '.5f', 11)}"
     row += f" {r.residual_rms_px:>9.3f} {_cell(chi2_dof(r), '.2f', 8)}"
     row += f" {r.observations_used:>4}/{r.observations_rejected:<4}"
-    row += f"{loo_cells(r)} {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
+    row += loo_cells(r) + (loo_cells(r, LOO_DECLARED_KEY) if declared else "")
+    row += f" {1e3 * r.diagnostics.get('time_s', float('nan')):>9.1f}"
     if T_true is not None:
         e = ground_truth_errors(r, T_true)
         row += f" {e['error_translation_mm']:>9.3f} {e['error_rotation_deg']:>9.4f}"
@@ -35,16 +37,19 @@ def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str
 def format_comparison(results: list[Result], T_true: np.ndarray | None = None) -> str:
     """One row per method: translation, root-sum-square sigmas, residual, leave-one-frame-out figures,
     time, and errors with T_true."""
+    declared = any(LOO_DECLARED_KEY in r.diagnostics for r in results if isinstance(r, Calibration))
     header = (
         f"{'method':<18} {'x [mm]':>9} {'y [mm]':>9} {'z [mm]':>9} {'sigma_t mm':>10} {'sigma_r deg':>11}"
     )
     header += (
-        f" {'resid px':>9} {'chi2/dof':>8} {'used/rej':>9} {'loo px':>8} {'loo mm':>8} {'time ms':>9}"
+        f" {'resid px':>9} {'chi2/dof':>8} {'used/rej':>9} {'loo px':>8} {'loo mm':>8}"
+        + (f" {'dec px':>8} {'dec mm':>8}" if declared else "")
+        + f" {'time ms':>9}"
         + (f" {'err mm':>9} {'err deg':>9}" if T_true is not None else "")
     )
     lines = [header]
     failures: dict[str, str] = {}
-    lines += [_comparison_row(r, T_true, failures) for r in results]
+    lines += [_comparison_row(r, T_true, failures, declared) for r in results]
     lines.append(
         "sigma_t, sigma_r: root-sum-square of the 1-sigma values (translation along the flange axes, "
         "rotation about the camera axes), '-' = no uncertainty; resid: pixel RMS at the reported flange "

@@ -12,7 +12,14 @@ import numpy as np
 from tqdm import tqdm
 
 from hec.calibration.comparison import format_comparison
-from hec.calibration.loo import BUDGET_S, add_cross_validation
+from hec.calibration.loo import (
+    BUDGET_S,
+    LOO_DECLARED_KEY,
+    LooModel,
+    add_cross_validation,
+    declared_model,
+    self_calibrated_model,
+)
 from hec.calibration.report import (
     MethodFailure,
     Result,
@@ -37,7 +44,7 @@ from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.calibration import MethodOptions, Prior
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import METHODS, needs_learned_noise, run_method
-from hec.estimator.solve.noise_learning import learn_noise
+from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
 from hec.estimator.solve.problem import (
     CalibrationInputError,
     CalibrationProblem,
@@ -145,9 +152,15 @@ def run_methods(
 ) -> list[Result]:
     """Each method on the same problem. With several, a CalibrationInputError becomes a MethodFailure;
     with one, it is raised. loo: cross-validate each result whose folds fit in loo_budget_s seconds
-    (None: any), hec.calibration.loo; the others say why not."""
+    (None: any), hec.calibration.loo: one method in the model it ran with, several in the
+    self-calibrated and the declared model alike; the others say why not."""
     results: list[Result] = []
     learned = None  # learned once, shared by the methods that model the noise
+    if loo and len(names) > 1 and options.learn_noise:
+        try:
+            learned = learn_noise(problem, options)
+        except CalibrationInputError:
+            pass  # each method that needs it fails with the reason
     bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
     for name in bar:
         bar.set_postfix_str(name)
@@ -160,10 +173,27 @@ def run_methods(
                 raise
             results.append(MethodFailure(name, str(exc)))
             continue
-        add_cross_validation(cal, name, problem, options, observations, loo, loo_budget_s, quiet)
+        models = _loo_models(name, len(names) > 1, problem, options, learned) if loo else []
+        for model in models or [declared_model(problem, options)]:
+            add_cross_validation(cal, name, model, observations, loo, loo_budget_s, quiet)
         add_pick_error(cal, problem)
         results.append(cal)
     return results
+
+
+def _loo_models(
+    name: str,
+    several: bool,
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    learned: LearnedNoise | None,
+) -> list[LooModel]:
+    """The models a method is cross-validated in: with several methods, the self-calibrated one (when
+    the noise was learned) and the declared one, alike for all; alone, the one it ran with."""
+    if learned is not None and (several or needs_learned_noise(name, options)):
+        declared = [declared_model(problem, options, LOO_DECLARED_KEY)] if several else []
+        return [self_calibrated_model(problem, options, learned), *declared]
+    return [declared_model(problem, options)]
 
 
 # ---------------------------------------------------------------- the command
