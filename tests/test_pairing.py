@@ -185,6 +185,25 @@ def test_import_prints_and_records_the_pairing(numbered: dict, tmp_path: Path, c
     assert _expected_order([Path(name) for name, _ in pairing["pairs"]]) == list(range(17))
 
 
+def test_an_image_column_one_row_off_is_named_by_the_import_check(
+    numbered: dict, tmp_path: Path, capsys
+) -> None:
+    """The pose file names each image, but the poses were logged one row late: every image has the
+    previous image's pose. The pairing is explicit, so only the images can tell: the import check
+    names it (rendered images, real detector)."""
+    poses = tmp_path / "poses.csv"
+    values = np.vstack([numbered["values"][:1], numbered["values"][:-1]])
+    rows = [f"img_{k + 1}.png," + ",".join(repr(float(v)) for v in row) for k, row in enumerate(values)]
+    poses.write_text("image,x,y,z,qw,qx,qy,qz\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "dataset"
+    argv = ["import", "folder", str(numbered["images"]), "--poses", str(poses), "--out", str(out)]
+    argv += ["--board", "hec_8qr", "--intrinsics", str(numbered["camera"]), "--quiet"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "the robot poses look like each image paired with the previous image's pose" in printed, printed
+    assert "check the pairing of images and poses" in printed
+
+
 def test_numpy_depth_in_metres_and_the_depth_camera_are_imported(
     numbered: dict, default_dataset: Path, tmp_path: Path
 ) -> None:

@@ -5,13 +5,17 @@ inverted (flange-to-base for base-to-flange), a rotation vector read as Euler an
 Euler order, degrees for radians, millimetres for metres, quaternions the other way round. Given
 the numbers of a pose file and the convention they were read with, the check reads them in each
 mistaken convention (alternative_conventions), calibrates each with OpenCV's Park method on the
-problem's detected board (cheap, no noise model) and compares the RMS pixel residual: a mistake
-is named when its residual is below MISTAKE_RATIO of the stated convention's.
+problem's detected board (cheap, no noise model) and compares the RMS pixel residual with the
+data's noise (data_noise_px: what the corners and the declared arm noise alone leave). A reading is
+named only when it fits near that noise (within NOISE_RATIO of it): the stated one, or a mistake
+that also leaves at most MISTAKE_RATIO of the stated one's residual. When none does, the report says
+so with the residuals and what to check, never a fix. The same trials pair each image with its
+neighbour's pose (a pose off by one). Motion that cannot tell the readings apart (translation only,
+or rotation about one axis) is reported as "cannot check".
 
 The same is done for the other common mistakes: pose pairs with the robot or the tracking poses
-inverted, or both (check_pose_pair_directions); a UR arm's joints in the ROS driver's order
-(check_joint_order) or poses in other base and tool frames than the joints' kinematics
-(check_joint_frames); a board file whose marker layout is mirrored (check_board_layout).
+inverted, or both (check_pose_pair_directions); a board file whose marker layout is mirrored
+(check_board_layout). The joints' checks are in hec.estimator.io.joint_check.
 """
 
 from __future__ import annotations
@@ -22,26 +26,27 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hec.estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
-from hec.estimator.geometry.transforms import invert, pose_error
+from hec.estimator.geometry.transforms import invert
 from hec.estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFileError, poses_from_values
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import opencv_calibrate
 from hec.estimator.solve.calibration import MethodOptions
-from hec.estimator.solve.initialise import mean_pose
+from hec.estimator.solve.initialise import board_pose_pnp
 from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
 # A mistaken convention is named when it leaves at most this fraction of the stated one's residual.
 MISTAKE_RATIO = 0.3
-# Joints whose rotations between frames differ from the poses' by more than this (degrees RMS) match
-# them in no order: a UR arm's nominal kinematics are within about 0.3 degrees of the real arm's.
-JOINT_MISMATCH_DEG = 1.0
-# Robot poses within this of the kinematics' flange poses of their joints (metres, radians) are in
-# the kinematics' own frames: a controller computes its poses from its joints with them, so the two
-# agree to its rounding and any noise added to either.
-JOINT_FRAME_TOLERANCE = (1e-3, np.radians(0.1))
-JOINT_FRAME_ROUNDS = 10
+# ... and any reading only when its residual is at most this many times the data's noise.
+NOISE_RATIO = 3.0
+# Views whose rotations from one another are all under this (degrees) cannot tell readings apart, nor
+# views whose rotation axes all lie within AXIS_SPREAD_DEG of one line.
+MIN_ROTATION_DEG = 2.0
+AXIS_SPREAD_DEG = 3.0
+# Poses shifted against the images by these many frames (+1: each image has the next image's pose).
+SHIFTS = (1, -1)
+# Residuals above this (pixels) are shown as "over" it: their digits mean nothing.
+LARGEST_SHOWN_PX = 1e4
 # Which way a pose pair's board pose maps: camera-to-target is T_cam_board (easy_handeye2's tracking).
 TRACKING_DIRECTIONS = ("camera-to-target", "target-to-camera")
 _OPTION = {
@@ -55,13 +60,15 @@ _OPTION = {
 @dataclass(frozen=True)
 class ConventionTrial:
     """One reading of the poses: the mistake in plain words ("" for the stated convention), its
-    convention, the RMS pixel residual of a Park calibration with it (inf when it fails) and the
-    convention's fields that differ from the stated one."""
+    convention, the RMS pixel residual of a Park calibration with it (inf when Park finds no
+    solution), the convention's fields that differ from the stated one and the pairing shift (0: as
+    paired; +1: each image read with the next image's pose)."""
 
     mistake: str
     convention: PoseConvention
     residual_px: float
     changed_fields: tuple[str, ...] = ()
+    shift: int = 0
 
     @property
     def option(self) -> str:
@@ -70,25 +77,75 @@ class ConventionTrial:
             f"{_OPTION[k]} {v}" for k, v in self.convention.to_dict().items() if k in self.changed_fields
         )
 
+    @property
+    def fix(self) -> str:
+        """What to do about it: pass the options, or for a shift check the pairing."""
+        if self.shift:
+            return "check the pairing of images and poses (a pose row missing or extra at the start?)"
+        return f"pass {self.option}"
+
+    @property
+    def residual_text(self) -> str:
+        return px_text(self.residual_px)
+
+
+def px_text(residual_px: float) -> str:
+    """A pixel residual in words: '3.42 px', 'over 10000 px' (points behind the camera, say), or
+    'no Park solution' for inf."""
+    if not np.isfinite(residual_px):
+        return "no Park solution"
+    return f"{residual_px:.3g} px" if residual_px < LARGEST_SHOWN_PX else f"over {LARGEST_SHOWN_PX:.0f} px"
+
 
 @dataclass(frozen=True)
 class ConventionReport:
-    """The stated convention's trial, every mistake's, and the one that fits (or None)."""
+    """The stated convention's trial, every mistake's, the one that fits (or None), the data's noise
+    (pixels RMS, data_noise_px) and, when the motion cannot tell readings apart, why (else None)."""
 
     stated: ConventionTrial
     trials: list[ConventionTrial]
     fits: ConventionTrial | None
+    noise_px: float
+    cannot_check: str | None = None
+
+    @property
+    def stated_fits(self) -> bool:
+        """The stated reading fits near the data's noise and no mistake fits better."""
+        return self.cannot_check is None and self.fits is None and self._near_noise(self.stated)
+
+    def _near_noise(self, trial: ConventionTrial) -> bool:
+        return trial.residual_px <= NOISE_RATIO * self.noise_px
 
     @property
     def message(self) -> str:
-        if self.fits is None:
+        noise = f"the data's noise {self.noise_px:.2g} px"
+        if self.cannot_check is not None:
+            return f"cannot check the pose convention: {self.cannot_check}"
+        if self.fits is not None:
+            change = (
+                f"the residual drops from {self.stated.residual_text} to {self.fits.residual_text}"
+                if np.isfinite(self.stated.residual_px)
+                else f"as stated Park finds no mount, read so the residual is {self.fits.residual_text}"
+            )
+            return f"the robot poses look like {self.fits.mistake}: {change} ({noise}); {self.fits.fix}"
+        if self.stated_fits:
             return (
-                f"the robot poses fit the stated convention ({self.stated.residual_px:.2g} px RMS residual); "
-                "none of the common mistakes fits better"
+                f"the robot poses fit the stated convention ({self.stated.residual_text} RMS residual, "
+                f"{noise}); none of the common mistakes fits better"
+            )
+        best = min(self.trials, key=lambda t: t.residual_px)
+        check = (
+            "check the pairing of images and poses, the time sync of poses and images, the camera's "
+            "intrinsics and the arm's accuracy"
+        )
+        if self.stated.residual_px < MISTAKE_RATIO * best.residual_px:
+            return (
+                f"the stated convention fits far better than any common mistake ({self.stated.residual_text} "
+                f"RMS residual; the next, {best.mistake}, {best.residual_text}) but not near {noise}: {check}"
             )
         return (
-            f"the robot poses look like {self.fits.mistake}: the residual drops from "
-            f"{self.stated.residual_px:.3g} px to {self.fits.residual_px:.3g} px; pass {self.fits.option}"
+            f"no reading of the poses fits near {noise}: as stated {self.stated.residual_text}, the best "
+            f"other reading ({best.mistake}) {best.residual_text}; {check}, and the units"
         )
 
 
@@ -128,16 +185,73 @@ def alternative_conventions(stated: PoseConvention) -> list[tuple[str, PoseConve
 def check_pose_convention(
     problem: CalibrationProblem, values: np.ndarray, stated: PoseConvention
 ) -> ConventionReport:
-    """Try the stated convention and every mistake on the problem's board observations. values:
-    (N, k) the pose file's numbers of the dataset's frames, row i for frame i (problem frames
-    name theirs)."""
-    trials = [_trial(problem, values, "", stated)]
-    for mistake, convention in alternative_conventions(stated):
-        trials.append(_trial(problem, values, mistake, convention, stated))
-    stated_trial, others = trials[0], trials[1:]
+    """Try the stated convention, every mistake and the pairing shifts on the problem's board
+    observations (module doc). values: (N, k) the pose file's numbers of the dataset's frames, row i
+    for frame i (problem frames name theirs)."""
+    values = np.asarray(values, dtype=np.float64)
+    noise = data_noise_px(problem)
+    stated_trial = _trial(problem, values, "", stated)
+    try:
+        cannot = _degenerate_motion(poses_from_values(values, stated)[[f.frame for f in problem.frames]])
+    except PoseFileError:
+        cannot = None
+    if cannot is not None:
+        return ConventionReport(stated_trial, [], None, noise, cannot)
+    others = [_trial(problem, values, m, c, stated) for m, c in alternative_conventions(stated)]
+    for shift in SHIFTS:
+        # Reading image i with row i + shift fits when the file paired it with its neighbour's pose.
+        words = "each image paired with the " + ("previous" if shift > 0 else "next") + " image's pose"
+        others.append(_trial(problem, values, words, stated, stated, shift))
     best = min(others, key=lambda t: t.residual_px)
-    fits = best if best.residual_px < MISTAKE_RATIO * stated_trial.residual_px else None
-    return ConventionReport(stated_trial, others, fits)
+    named = (
+        best.residual_px < MISTAKE_RATIO * stated_trial.residual_px
+        and best.residual_px <= NOISE_RATIO * noise
+    )
+    return ConventionReport(stated_trial, others, best if named else None, noise)
+
+
+def data_noise_px(problem: CalibrationProblem) -> float:
+    """The RMS pixel residual the data's noise alone leaves (pixels): each frame's own board pose
+    (PnP) residual, with the declared robot pose noise seen at the board's distance added in
+    quadrature (focal length x (translation sigma / distance + rotation sigma))."""
+    corners = _board_residual_px(problem, np.ones(3))
+    focal = float(np.mean(np.diag(problem.intrinsics.K)[:2]))
+    distance = float(np.median([_board_distance_m(problem, f) for f in problem.frames]))
+    noise = problem.robot_noise
+    robot = focal * (noise.translation_sigma_m / max(distance, 1e-3) + noise.rotation_sigma_rad)
+    return float(np.hypot(corners, robot))
+
+
+def _board_distance_m(problem: CalibrationProblem, frame) -> float:
+    try:
+        return float(np.linalg.norm(board_pose_pnp(problem, frame)[:3, 3]))
+    except CalibrationInputError:
+        return float("nan")
+
+
+def _degenerate_motion(T_base_flange: np.ndarray) -> str | None:
+    """Why the flange's motion (N, 4, 4) cannot tell pose readings apart, or None: no rotation
+    between views, or rotations about one axis only."""
+    R = T_base_flange[:, :3, :3]
+    i, j = np.triu_indices(len(R), k=1)
+    rotvecs = Rotation.from_matrix(np.swapaxes(R[i], 1, 2) @ R[j]).as_rotvec()
+    angles = np.degrees(np.linalg.norm(rotvecs, axis=1))
+    largest = float(angles.max()) if len(angles) else 0.0
+    if largest < MIN_ROTATION_DEG:
+        return (
+            f"the flange barely rotates between views (at most {largest:.2g} deg), so every reading of "
+            "the rotations fits alike; record views turned about two axes (hec plan proposes them)"
+        )
+    axes = rotvecs[angles >= MIN_ROTATION_DEG] / np.radians(angles[angles >= MIN_ROTATION_DEG])[:, None]
+    spread = np.degrees(
+        np.arcsin(min(1.0, float(np.linalg.svd(axes, compute_uv=False)[1]) / np.sqrt(len(axes))))
+    )
+    if spread < AXIS_SPREAD_DEG:
+        return (
+            "the flange rotates about one axis only between views, so the readings cannot be told apart "
+            "(and no hand-eye method can find the mount along that axis); record views turned about two axes"
+        )
+    return None
 
 
 def _trial(
@@ -146,20 +260,26 @@ def _trial(
     mistake: str,
     convention: PoseConvention,
     stated: PoseConvention | None = None,
+    shift: int = 0,
 ) -> ConventionTrial:
     changed = tuple(
         k for k, v in convention.to_dict().items() if stated is not None and stated.to_dict()[k] != v
     )
     try:
         T_base_flange = poses_from_values(values, convention)
-        frames = [replace(f, T_base_flange=T_base_flange[f.frame], joints=None) for f in problem.frames]
+        frames = [
+            replace(f, T_base_flange=T_base_flange[f.frame + shift], joints=None)
+            for f in problem.frames
+            if 0 <= f.frame + shift < len(T_base_flange)
+        ]
         result = opencv_calibrate(
             replace(problem, frames=frames, kinematics=None), MethodOptions(), "opencv-park"
         )
         residual = result.residual_rms_px
     except (CalibrationInputError, PoseFileError, ValueError, np.linalg.LinAlgError):
         residual = float("inf")
-    return ConventionTrial(mistake, convention, residual if np.isfinite(residual) else float("inf"), changed)
+    residual = residual if np.isfinite(residual) else float("inf")
+    return ConventionTrial(mistake, convention, residual, changed, shift)
 
 
 def _other(direction: str) -> str:
@@ -256,47 +376,6 @@ def _pair_reading(
     )
 
 
-def check_joint_order(
-    T_base_flange: np.ndarray, joints: np.ndarray, kinematics: URKinematics, stated_order: str
-) -> str:
-    """Whether a UR arm's joints (N, 6, radians, read in stated_order and put in the arm's order)
-    match the robot poses (N, 4, 4) or match them with the first and third angle swapped (the ROS
-    driver's order for the arm's, or the other way); in words, with the residual of each: the RMS
-    difference, over all pairs of frames, between the rotation angle from one frame to the other
-    by the poses and by the kinematics (independent of the base and tool frames either uses)."""
-    swapped = "arm" if stated_order == "ros-driver" else "ros-driver"
-    stated_deg = _joint_residual_deg(T_base_flange, joints, kinematics)
-    swapped_deg = _joint_residual_deg(T_base_flange, joints_in_arm_order(joints, "ros-driver"), kinematics)
-    words = {
-        "arm": "the arm's order (base joint first)",
-        "ros-driver": "the ROS driver's order (elbow first)",
-    }
-    if swapped_deg < MISTAKE_RATIO * stated_deg:
-        return (
-            f"the joints look like {words[swapped]}: the rotation between frames by the kinematics differs "
-            f"from the robot poses' by {stated_deg:.3g} deg RMS as stated, {swapped_deg:.3g} deg read so; "
-            f"pass --joint-order {swapped}"
-        )
-    if stated_deg > JOINT_MISMATCH_DEG:
-        return (
-            f"the joints do not match the robot poses in either order ({stated_deg:.3g} deg RMS as stated, "
-            f"{swapped_deg:.3g} deg swapped): are they these images' joints, in --joint-unit?"
-        )
-    return f"the joints fit the robot poses in {words[stated_order]} ({stated_deg:.2g} deg RMS)"
-
-
-def _joint_residual_deg(T_base_flange: np.ndarray, joints: np.ndarray, kinematics: URKinematics) -> float:
-    i, j = np.triu_indices(len(joints), k=1)
-
-    def angles(R: np.ndarray) -> np.ndarray:
-        return Rotation.from_matrix(np.swapaxes(R[i], 1, 2) @ R[j]).magnitude()
-
-    by_joints = angles(np.array([forward(kinematics, q)[:3, :3] for q in joints]))
-    return float(
-        np.degrees(np.sqrt(np.mean(np.square(angles(np.asarray(T_base_flange)[:, :3, :3]) - by_joints))))
-    )
-
-
 def check_board_layout(problem: CalibrationProblem) -> str:
     """Whether the board file's marker layout fits the images, or fits them mirrored (the markers'
     centres reflected left to right or top to bottom about the board's origin, each marker's own
@@ -337,51 +416,3 @@ def _board_residual_px(problem: CalibrationProblem, mirror: np.ndarray) -> float
         squared += float(np.sum((projected - image_points) ** 2))
         count += len(image_points)
     return float(np.sqrt(squared / max(count, 1)))
-
-
-def check_joint_frames(T_base_flange: np.ndarray, joints: np.ndarray, kinematics: URKinematics) -> str | None:
-    """Whether the robot poses (N, 4, 4) are the kinematics' flange poses of the joints (N, 6, the
-    arm's order) in other base and tool frames, T_i = L FK(q_i) R with L or R not the identity (a ROS
-    tf pose from base_link is the controller's base turned 180 degrees about z): in words, or None
-    when they are the kinematics' own (within JOINT_FRAME_TOLERANCE) or no such L and R fit."""
-    F = [forward(kinematics, q) for q in joints]
-    if _largest_error(T_base_flange, F, np.eye(4), np.eye(4)) < 1.0:
-        return None
-    L, R = np.eye(4), np.eye(4)
-    for _ in range(JOINT_FRAME_ROUNDS):  # alternate: each is a mean given the other
-        L = mean_pose([T @ invert(f @ R) for T, f in zip(T_base_flange, F, strict=True)])
-        R = mean_pose([invert(L @ f) @ T for T, f in zip(T_base_flange, F, strict=True)])
-    if _largest_error(T_base_flange, F, L, R) > 1.0:
-        return None
-    parts = [
-        f"{what} frame {_describe_transform(T)}"
-        for what, T in (("base", L), ("tool", R))
-        if _tolerances(T, np.eye(4)) >= 1.0
-    ]
-    return (
-        f"the robot poses are the joints' flange poses in another {' and '.join(parts)} than the arm's "
-        "kinematics use (a ROS pose from base_link has the base turned 180 deg about z); the arm's "
-        "self-calibration assumes the kinematics' frames: give the poses in them (UR's base and flange)"
-    )
-
-
-def _largest_error(T: list[np.ndarray], F: list[np.ndarray], L: np.ndarray, R: np.ndarray) -> float:
-    """The largest of T_i against L F_i R, in _tolerances."""
-    return max(_tolerances(t, L @ f @ R) for t, f in zip(T, F, strict=True))
-
-
-def _tolerances(T_a: np.ndarray, T_b: np.ndarray) -> float:
-    """How far apart two poses are in units of JOINT_FRAME_TOLERANCE (the worse of translation and
-    rotation)."""
-    metres, radians = pose_error(T_a, T_b)
-    return max(metres / JOINT_FRAME_TOLERANCE[0], radians / JOINT_FRAME_TOLERANCE[1])
-
-
-def _describe_transform(T: np.ndarray) -> str:
-    rotvec = Rotation.from_matrix(T[:3, :3]).as_rotvec()
-    angle = float(np.linalg.norm(rotvec))
-    axis = rotvec / angle if angle > 0.0 else np.array([0.0, 0.0, 1.0])
-    return (
-        f"(turned {np.degrees(angle):.3g} deg about [{axis[0]:.2f} {axis[1]:.2f} {axis[2]:.2f}], "
-        f"moved {1e3 * np.linalg.norm(T[:3, 3]):.3g} mm)"
-    )

@@ -112,9 +112,9 @@ def opencv_calibrate(problem: CalibrationProblem, options: MethodOptions, method
     )
     if result.residual_rms_px > MISFIT_RESIDUAL_PX:
         result.warnings.append(
-            f"{method}'s result does not fit the observations "
-            f"(RMS residual {result.residual_rms_px:.0f} px): OpenCV returned a wrong solution "
-            "without an error; do not use it"
+            f"{method}'s result does not fit the observations (RMS residual "
+            f"{result.residual_rms_px:.0f} px): the robot poses, board file or intrinsics do not match the "
+            "images, or OpenCV returned a wrong solution without an error; do not use it"
         )
     return result
 

@@ -302,6 +302,7 @@ def calibrate_dataset(
         observations, dataset.board, dataset.intrinsics, noise, settings.use_depth, dataset_arm(dataset)
     )
     _note_ignored_options(settings)
+    check_poses_fit(dataset, problem)
     try:
         results = run_methods(
             settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
@@ -328,15 +329,46 @@ def calibrate_dataset(
     return results
 
 
+def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
+    """Fail in seconds, before any estimation, when the robot poses do not fit the images at any mount:
+    OpenCV's Park method (milliseconds) leaves MAX_CORNER_RMS_PX or more. The error says why, with the
+    convention check of an imported dataset's pose numbers (hec.estimator.io.convention_check)."""
+    from hec.estimator.solve.baselines import opencv_calibrate
+    from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
+
+    try:
+        park = opencv_calibrate(problem, MethodOptions(), "opencv-park")
+    except CalibrationInputError:
+        return  # too few or degenerate views: each method says so itself
+    if park.residual_rms_px < MAX_CORNER_RMS_PX:
+        return
+    from hec.estimator.io.convention_check import check_pose_convention, px_text
+
+    record = dataset.metadata.get("provenance") or {}
+    if "pose_values" in record:
+        from hec.estimator.io.pose_file import PoseConvention
+
+        stated = PoseConvention(**record["pose_convention"])
+        why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
+    else:
+        why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
+    raise CalibrationInputError(
+        "the robot poses do not fit the images at any mount (the best closed-form mount leaves "
+        f"{px_text(park.residual_rms_px)} RMS, {MAX_CORNER_RMS_PX:.0f} px is the most any model explains); "
+        + why
+    )
+
+
 def convention_lines(dataset: Dataset, problem: CalibrationProblem, results: list[Result]) -> list[str]:
-    """For an imported dataset whose poses some method fits poorly (RMS over POOR_FIT_PX) or not at
-    all, the convention check of its pose numbers and the board layout check
+    """For an imported dataset whose poses a method fits poorly (RMS over POOR_FIT_PX), or that no
+    method calibrated, the convention check of its pose numbers and the board layout check
     (hec.estimator.io.convention_check): the lines to print."""
     from hec.estimator.io.convention_check import check_board_layout, check_pose_convention
     from hec.estimator.io.pose_file import PoseConvention
 
     record = dataset.metadata.get("provenance") or {}
-    poor = [r for r in results if isinstance(r, MethodFailure) or r.residual_rms_px > POOR_FIT_PX]
+    done = [r for r in results if not isinstance(r, MethodFailure)]
+    poor = [r for r in done if r.residual_rms_px > POOR_FIT_PX] or ([] if done else results)
     if "pose_values" not in record or not poor:
         return []
     stated = PoseConvention(**record["pose_convention"])

@@ -311,7 +311,7 @@ def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
 def _joint_check(dataset: Dataset) -> list[str]:
     """The joint-order check of an imported dataset with joints (or why it cannot run) and, when the
     poses are the joints' kinematics in other base or tool frames, which."""
-    from hec.estimator.io.convention_check import check_joint_frames, check_joint_order
+    from hec.estimator.io.joint_check import check_joint_frames, check_joint_order
     from hec.estimator.solve.problem import dataset_arm
 
     arm = dataset_arm(dataset)
