@@ -204,6 +204,10 @@ def test_joints_are_imported_in_the_arms_order_and_a_wrong_order_is_named(
     out = capsys.readouterr().out
     assert "17 joints" not in out and "6 joints each" in out
     assert f"joint check: {said}" in out
+    if not options:  # calibrating with joints in the wrong order warns instead of absorbing them
+        assert main(["calibrate", str(tmp_path / "imported"), "--no-loo", "--quiet"]) == 0
+        warned = "the arm's self-calibration would otherwise absorb the mistake" in capsys.readouterr().out
+        assert warned == (written == "ros-driver")
     if "fit the robot poses" in said:  # read in the right order, the arm's joints are the rendered ones
         source = load_dataset(exported["reference"])
         imported = load_dataset(tmp_path / "imported")

@@ -88,3 +88,26 @@ def test_import_from_joints_calibrates_with_the_arm_kept(joint_folder: dict, tmp
     assert arm is not None and arm.kinematics.d == UR5.d and arm.kinematics.name == "lab_arm"
     assert main(["calibrate", str(out), "--no-loo", "--quiet"]) == 0
     assert "T_flange_cam" in capsys.readouterr().out
+
+
+def test_a_joint_read_with_an_offset_is_named_not_absorbed(
+    joint_folder: dict, tmp_path: Path, capsys
+) -> None:
+    """Joint 2 read 0.8 degrees off on every frame, the flange poses computed from the joints: the
+    arm's self-calibration moves joint 2's zero by more than a real arm's ever is, and calibrate
+    says so instead of only absorbing it."""
+    q = joint_folder["q"].copy()
+    q[:, 1] += np.radians(0.8)
+    joints = tmp_path / "joints.csv"
+    joints.write_text(
+        "\n".join(["j1,j2,j3,j4,j5,j6", *(",".join(repr(float(v)) for v in r) for r in q)]) + "\n"
+    )
+    out = tmp_path / "dataset"
+    argv = ["import", "folder", str(joint_folder["root"] / "images"), "--out", str(out), "--quiet"]
+    argv += ["--joints", str(joints), "--robot-model", "ur5", "--board", "hec_8qr"]
+    assert main([*argv, "--intrinsics", str(joint_folder["camera"]), "--no-check"]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(out), "--no-loo", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "the arm's self-calibration moves the zero of joint2 by -0.7" in printed, printed
+    assert "check the joint readings before trusting this mount" in printed

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from hec.calibration.arm_findings import joint_order_warning, joint_zero_warning
 from hec.calibration.comparison import format_comparison
 from hec.calibration.loo import (
     BUDGET_S,
@@ -156,6 +157,7 @@ def run_methods(
     self-calibrated and the declared model alike; the others say why not."""
     results: list[Result] = []
     learned = None  # learned once, shared by the methods that model the noise
+    order_warning = joint_order_warning(problem)
     if loo and len(names) > 1 and options.learn_noise:
         try:
             learned = learn_noise(problem, options)
@@ -176,6 +178,9 @@ def run_methods(
         models = _loo_models(name, len(names) > 1, problem, options, learned) if loo else []
         for model in models or [declared_model(problem, options)]:
             add_cross_validation(cal, name, model, observations, loo, loo_budget_s, quiet)
+        if needs_learned_noise(name, options):  # the methods that self-calibrate the arm
+            arm = [order_warning, joint_zero_warning(cal.diagnostics.get("noise"))]
+            cal.warnings.extend(w for w in arm if w is not None and w not in cal.warnings)
         add_pick_error(cal, problem)
         results.append(cal)
     return results
