@@ -11,6 +11,8 @@ import pytest
 
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
+from hec.estimator.io.pose_file import PoseFileError
+from hec.estimator.io.pose_table import read_number_table
 from hec.estimator.observe.depth import DEPTH_CAMERAS
 
 CAMERA = CameraIntrinsics(640, 480, 615.2, 614.8, 321.5, 238.25, (0.11, 0.0, 0.0, 0.0, 0.0))
@@ -93,3 +95,35 @@ def test_depth_cameras_differ_where_their_stereo_does() -> None:
     at_1m = {name: float(model.sigma(1.0)) for name, model in DEPTH_CAMERAS.items()}
     # A shorter baseline is noisier at the same distance: D405 (18 mm) > D435 (50 mm) > D455 (95 mm).
     assert at_1m["d405"] > at_1m["d435"] > at_1m["d455"]
+
+
+@pytest.mark.parametrize(
+    ("name", "array", "message"),
+    [
+        ("poses.npy", None, r"poses.npy: not a numpy .npy/.npz file"),
+        (
+            "poses.npy",
+            np.zeros((3, 4, 3)),
+            r"a stack of poses should be \(N, 4, 4\), got \(3, 4, 3\)",
+        ),
+        ("poses.npy", np.array(["a", "b"]), r"poses.npy: expected an \(N, k\) array of numbers"),
+        (
+            "poses.npz",
+            {"a": np.zeros((2, 7)), "b": np.zeros((2, 7))},
+            r"poses.npz: holds arrays \['a', 'b'\]",
+        ),
+        ("poses.npy", np.full((2, 7), np.nan), r"poses.npy: entry 0: a NaN or infinite number"),
+    ],
+)
+def test_bad_numpy_pose_files_name_the_file_and_what_is_wrong(
+    tmp_path: Path, name: str, array: np.ndarray | dict | None, message: str
+) -> None:
+    path = tmp_path / name
+    if array is None:
+        path.write_bytes(b"not numpy")
+    elif isinstance(array, dict):
+        np.savez(path, **array)
+    else:
+        np.save(path, array)
+    with pytest.raises(PoseFileError, match=message):
+        read_number_table(path)
