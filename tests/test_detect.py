@@ -12,6 +12,7 @@ from hec.estimator.observe.grading import grade_observations
 from hec.estimator.observe.observations import observe_dataset
 from hec.estimator.targets.qr import DetectorSettings, QRDetector
 from hec.estimator.targets.qr_fit import fit_marker, orient_corners
+from hec.support.detection import nees_note, nees_text
 
 
 @pytest.fixture(scope="module")
@@ -192,3 +193,11 @@ def test_code_fit_covariance_matches_the_scatter_of_repeated_fits() -> None:
     ratio = spread.mean() / predicted.mean()
     assert 0.6 <= ratio <= 1.6, ratio
     assert 3.0 <= np.mean([f.noise_sigma for f in fits]) <= 5.0
+
+
+def test_normalised_errors_above_three_are_explained_on_their_line() -> None:
+    assert nees_note(1.1, 0.9) == ""
+    note = nees_note(1.1, 35903.53)
+    assert "the 3D points miss by more than their covariance says (a depth bias" in note
+    assert "corners miss" not in note and nees_text(35903.53) == "3.59e+04" and nees_text(1.234) == "1.23"
+    assert "a lens or print error" in nees_note(4.2, 1.0)

@@ -169,6 +169,7 @@ def test_hec_plan_writes_planned_views_the_simulator_renders_and_calibrates(tmp_
     assert code == 0, err
     waypoints = read_waypoint_file(out)
     assert len(waypoints) == 8 and all("predicted 1-sigma" in w.label for w in waypoints)
+    assert "inf" not in said
     last = re.findall(r"predicted 1-sigma ([0-9.]+) mm / ([0-9.]+) deg", said)[-1]
     default = re.search(r"the default 17 views predict ([0-9.]+) mm / ([0-9.]+) deg", said)
     assert float(last[0]) < float(default[1]) and float(last[1]) < float(default[2]), said

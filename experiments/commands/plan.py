@@ -251,7 +251,11 @@ def run(args: argparse.Namespace) -> int:
     for k, step in enumerate(steps):
         view = candidates[usable[step.candidate]]
         label = view.label.split(": ", 1)[1]
-        sigma = f"predicted 1-sigma {step.sigma_translation_mm:.3f} mm / {step.sigma_rotation_deg:.4f} deg"
+        sigma = (
+            f"predicted 1-sigma {step.sigma_translation_mm:.3f} mm / {step.sigma_rotation_deg:.4f} deg"
+            if np.isfinite(step.sigma_translation_mm) and np.isfinite(step.sigma_rotation_deg)
+            else "mount not determined yet (it needs views turned about two axes)"
+        )
         waypoints.append(
             Waypoint(k, f"planned view {k + 1}: {label}; {sigma}", T_base_flange=view.T_base_flange)
         )

@@ -179,7 +179,37 @@ def run_detect(
             f"vs ground truth: {s['detected_visible']}/{s['visible_markers']} fully visible markers detected"
             f" ({s['wrong_id']} with a wrong ID); corner RMS {s['corner_rms_px']:.4f} px"
             f" (decoders {s['raw_corner_rms_px']:.3f} px); marker-centre 3D RMS {s['center_rms_mm']:.4f} mm;"
-            f" normalised errors (1 = honest): corners {s['corner_nees']:.2f},"
-            f" centre 3D {s['center_point_nees']:.2f}, all 3D points {s['point_nees']:.2f}"
+            f" normalised errors (1 = honest): corners {nees_text(s['corner_nees'])},"
+            f" centre 3D {nees_text(s['center_point_nees'])}, all 3D points {nees_text(s['point_nees'])}"
+            + nees_note(s["corner_nees"], max(s["center_point_nees"], s["point_nees"]))
         )
     return observations
+
+
+# A normalised error above this says the errors are larger than the covariance the detector gives.
+NEES_EXPLAINED = 3.0
+
+
+def nees_text(value: float) -> str:
+    """A normalised error: two decimals, or three significant digits when large."""
+    return f"{value:.2f}" if value < 100 else f"{value:.3g}"
+
+
+def nees_note(corner_nees: float, point_nees: float) -> str:
+    """Why normalised errors above NEES_EXPLAINED are what they are ('' when none is)."""
+    notes = []
+    if corner_nees > NEES_EXPLAINED:
+        notes.append(
+            "the corners miss by more than their covariance says (a lens or print error the detector's "
+            "noise model leaves out)"
+        )
+    if point_nees > NEES_EXPLAINED:
+        notes.append(
+            "the 3D points miss by more than their covariance says (a depth bias, scale or offset, that "
+            "the per-pixel depth noise leaves out)"
+        )
+    if not notes:
+        return ""
+    return (
+        " (above 3: " + "; ".join(notes) + "; hec calibrate learns the noise and self-calibrates such errors)"
+    )
