@@ -166,6 +166,38 @@ def test_poses_logged_one_row_late_are_named_on_a_real_set(tmp_path: Path) -> No
     assert "the robot poses look like each image paired with the previous image's pose" in printed, printed
 
 
+@pytest.mark.parametrize("waiting", [False, True])
+def test_a_headerless_pose_file_pairs_by_number_on_a_real_set(tmp_path: Path, waiting: bool) -> None:
+    """ur_xtion_chessboard's poses as bare rows (no header, no image column) beside images named
+    image0.jpg .. image17.jpg, whose name order puts image10 before image2: paired by the number in
+    each name, the first row kept as a pose, the poses fit; with the robot's waiting pose repeated at
+    the end, the import is refused naming it."""
+    real_set = next(s for s in SETS if s.name == "ur_xtion_chessboard")
+    lines = (REAL / real_set.name / "poses.csv").read_text().splitlines()[1:]
+    rows = sorted(
+        (int(line.split(",")[0].removeprefix("image").removesuffix(".jpg")), line) for line in lines
+    )
+    bare = [line.split(",", 1)[1] for _, line in rows] + ([rows[-1][1].split(",", 1)[1]] if waiting else [])
+    poses = tmp_path / "bare.csv"
+    poses.write_text("\n".join(bare) + "\n")
+    folder = REAL / real_set.name
+    code, stdout, stderr = run_hec(
+        ["import", "folder", str(folder / "images"), "--poses", str(poses), "--rotation", "rotvec",
+         "--intrinsics", str(folder / "camera.yml"), "--board", str(folder / "board.json"),
+         "--out", str(tmp_path / "ds"), "--quiet"]
+    )  # fmt: skip
+    if waiting:
+        assert code != 0 and "has 18 images but" in stderr and "19 poses" in stderr, stderr
+        assert "hold the same pose: a robot that waited, or a row written twice?" in stderr
+        return
+    assert code == 0, stderr
+    assert "by the number in each image's name (natural order)" in stdout
+    assert "image9.jpg - line 10, image10.jpg - line 11" in stdout or "image17.jpg - line 18" in stdout, (
+        stdout
+    )
+    assert "the robot poses fit the stated convention" in stdout, stdout
+
+
 def test_poses_no_reading_explains_fail_before_any_estimation(tmp_path: Path) -> None:
     """Shuffled poses: `hec calibrate` fails at its closed-form check, saying the poses do not fit and
     what to check, without blaming OpenCV and without running a method."""
