@@ -71,9 +71,9 @@ def dataset(default_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> 
 
 @pytest.fixture(scope="module")
 def first_run(dataset: Path) -> tuple[int, str, str, Path]:
-    """`hec calibrate DATASET --json OUT` on the copy: detects, caches, calibrates with ekf."""
+    """`hec calibrate DATASET --json OUT --verbose` on the copy: detects, caches, calibrates with ekf."""
     out = dataset.parent / "ekf.json"
-    return (*run_hec(["calibrate", str(dataset), "--json", str(out), "--quiet"]), out)
+    return (*run_hec(["calibrate", str(dataset), "--json", str(out), "--quiet", "--verbose"]), out)
 
 
 def test_first_run_detects_and_caches_then_reuses_the_cache(dataset: Path, first_run) -> None:
@@ -81,7 +81,7 @@ def test_first_run_detects_and_caches_then_reuses_the_cache(dataset: Path, first
     assert code == 0, stderr
     assert "no detections cache" in stderr
     assert (dataset / CACHE_FILE).is_file()
-    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet"])
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet", "--verbose"])
     assert code == 0, stderr
     assert f"observations from {dataset / CACHE_FILE}" in stdout
     assert "detecting" not in stderr
@@ -117,6 +117,39 @@ def test_prints_the_transform_its_meaning_uncertainty_and_errors(first_run) -> N
         "+0.000000",
         "+1.000000]",
     ]
+
+
+@pytest.fixture(scope="module")
+def realistic_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The realistic cell (arm kinematics, intrinsics, lens, depth, board print off), rendered."""
+    out = tmp_path_factory.mktemp("realistic") / "realistic"
+    code, _, stderr = run_hec(["simulate", "--out", str(out), "--scenario", "realistic", "--quiet"])
+    assert code == 0, stderr
+    return out
+
+
+@pytest.mark.parametrize(("cell", "grade"), [("ideal", "good"), ("realistic", "usable")])
+def test_the_default_output_is_short_and_leads_with_the_verdict(
+    dataset: Path, realistic_dataset: Path, cell: str, grade: str
+) -> None:
+    """At most 20 lines, the transform and the pick error first, the verdict in the first 10 lines,
+    then at most three findings, each a cause and a fix; on the realistic cell the board's bend is
+    one of them."""
+    path = dataset if cell == "ideal" else realistic_dataset
+    code, stdout, stderr = run_hec(["calibrate", str(path), "--quiet"])
+    assert code == 0, stderr
+    lines = stdout.splitlines()
+    assert len(lines) <= 20, stdout
+    verdict = next(i for i, line in enumerate(lines) if line.startswith("verdict: "))
+    assert verdict < 10 and lines[verdict].startswith(f"verdict: {grade}: "), stdout
+    assert lines[0].startswith("T_flange_cam by ekf") and "pick error at the working distance" in stdout
+    findings = [line for line in lines if line.startswith("  - ")]
+    assert len(findings) <= 3 and all(len(f) < 300 for f in findings), findings
+    if cell == "realistic":
+        assert any("the board is bent out of its plane" in f and "mount it flat" in f for f in findings)
+    else:
+        assert not findings and "as well as their own noise allows" in lines[verdict]
+    assert "inf" not in stdout and "chi-square" not in stdout
 
 
 def _observation_count(stdout: str) -> int:
@@ -200,7 +233,9 @@ def test_prints_and_writes_the_leave_one_frame_out_figures(first_run) -> None:
 
 def test_no_loo_skips_the_folds_and_says_so(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "r.json"
-    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--no-loo", "--json", str(out), "--quiet"])
+    code, stdout, stderr = run_hec(
+        ["calibrate", str(dataset), "--no-loo", "--json", str(out), "--quiet", "--verbose"]
+    )
     assert code == 0, stderr
     assert "leave-one-frame-out prediction: not run (--no-loo)" in stdout and not LOO_LINE.search(stdout)
     data = json.loads(out.read_text())
@@ -220,13 +255,13 @@ def test_methods_whose_folds_would_take_too_long_are_not_cross_validated(
         return result
 
     monkeypatch.setitem(METHODS, "ekf", slow)
-    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet"])
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet", "--verbose"])
     assert code == 0, stderr
     assert (
         "leave-one-frame-out prediction: not run: about 34 s (17 folds x 2.0 s), over the 30 s budget; "
         "--loo-all runs it"
     ) in stdout
-    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet", "--loo-all"])
+    code, stdout, stderr = run_hec(["calibrate", str(dataset), "--quiet", "--verbose", "--loo-all"])
     assert code == 0, stderr
     assert LOO_LINE.search(stdout), stdout
 
@@ -353,7 +388,16 @@ def test_no_depth_reaches_methods_that_read_depth_from_the_observations(dataset:
 
 
 def test_robot_noise_options_override_the_dataset(dataset: Path) -> None:
-    argv = ["calibrate", str(dataset), "--robot-sigma-mm", "0.5", "--robot-sigma-deg", "0.05", "--quiet"]
+    argv = [
+        "calibrate",
+        str(dataset),
+        "--robot-sigma-mm",
+        "0.5",
+        "--robot-sigma-deg",
+        "0.05",
+        "--quiet",
+        "--verbose",
+    ]
     code, stdout, stderr = run_hec(argv)
     assert code == 0, stderr
     assert "robot pose noise 0.500 mm, 0.0500 deg (command line)" in stdout
@@ -380,6 +424,8 @@ def test_a_dataset_of_tcp_poses_says_so(default_dataset: Path, tmp_path: Path) -
     shutil.copytree(default_dataset, copy)
     meta = json.loads((copy / "dataset.json").read_text())
     (copy / "dataset.json").write_text(json.dumps(meta | {"pose_frame": "tcp"}))
-    code, out, _ = run_hec(["calibrate", str(copy), "--json", str(tmp_path / "r.json"), "--quiet"])
+    code, out, _ = run_hec(
+        ["calibrate", str(copy), "--json", str(tmp_path / "r.json"), "--quiet", "--verbose"]
+    )
     assert code == 0 and "robot poses: the controller's TCP, not the flange" in out
     assert json.loads((tmp_path / "r.json").read_text())["pose_frame"] == "tcp"

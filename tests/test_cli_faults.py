@@ -168,7 +168,9 @@ def test_calibrate_json_on_a_read_only_file_system_fails_before_the_work(
     default_dataset: Path, tmp_path: Path
 ) -> None:
     with _tmpfs(tmp_path / "fs", "64k", read_only=True) as fs:
-        code, out, err = run_hec(["calibrate", str(default_dataset), "--json", str(fs / "r.json"), "--quiet"])
+        code, out, err = run_hec(
+            ["calibrate", str(default_dataset), "--json", str(fs / "r.json"), "--quiet", "--verbose"]
+        )
     assert code == 2 and f"{fs / 'r.json'}: cannot write in {fs} (Read-only file system)" in err
     assert out == "" and "Traceback" not in err
 
@@ -255,7 +257,9 @@ def test_calibrate_says_which_frame_had_a_depth_image_of_another_size(
     copy = _uncached_copy(default_dataset, tmp_path / "copy")
     depth = cv2.imread(str(copy / "depth" / "000003.png"), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(copy / "depth" / "000003.png"), depth[::2, ::2])
-    code, out, _ = run_hec(["calibrate", str(copy), "--method", "opencv-tsai", "--no-loo", "--quiet"])
+    code, out, _ = run_hec(
+        ["calibrate", str(copy), "--method", "opencv-tsai", "--no-loo", "--quiet", "--verbose"]
+    )
     assert code == 0
     assert "warning: frame 3: depth image is 320x240 but colour is 640x480" in out
 
@@ -270,7 +274,9 @@ def test_a_nan_corner_in_the_cache_names_the_file_and_calibrate_detects_again(
     (copy / CACHE_FILE).write_text(json.dumps(cache))
     with pytest.raises(ValueError, match=f"{copy / CACHE_FILE}: malformed .*'corners_px' is not finite"):
         load_observations(copy)
-    code, _, err = run_hec(["calibrate", str(copy), "--method", "opencv-tsai", "--no-loo", "--quiet"])
+    code, _, err = run_hec(
+        ["calibrate", str(copy), "--method", "opencv-tsai", "--no-loo", "--quiet", "--verbose"]
+    )
     assert code == 0 and "is not finite); detecting the board in 17 frames" in err
     assert len(load_observations(copy)[0]) == 17
 
@@ -296,7 +302,7 @@ def test_calibrate_on_a_read_only_dataset_detects_without_caching(
         _uncached_copy(default_dataset, fs / "ds")
         subprocess.run(["mount", "-o", "remount,ro", str(fs)], check=True)
         code, out, err = run_hec(
-            ["calibrate", str(fs / "ds"), "--method", "opencv-tsai", "--no-loo", "--quiet"]
+            ["calibrate", str(fs / "ds"), "--method", "opencv-tsai", "--no-loo", "--quiet", "--verbose"]
         )
     assert code == 0, err
     assert f"note: cannot write {fs / 'ds' / CACHE_FILE} (Read-only file system): not cached" in err

@@ -88,7 +88,7 @@ def test_frames_csv_with_a_nan_pose_or_frames_out_of_order_is_refused(
     cells[column] = value
     lines[2] = ",".join(cells)
     (ds / "frames.csv").write_text("\n".join(lines) + "\n")
-    code, _, err = run_hec(["calibrate", str(ds), "--quiet", "--no-loo"])
+    code, _, err = run_hec(["calibrate", str(ds), "--quiet", "--verbose", "--no-loo"])
     assert code == 2 and f"{ds / 'frames.csv'}: {message}" in err, err
 
 
@@ -274,7 +274,7 @@ def test_a_robot_sigma_too_large_to_square_is_refused(
     small_dataset: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     with pytest.raises(SystemExit) as exit_info:
-        main(["calibrate", str(small_dataset), "--robot-sigma-mm", "1e308", "--quiet"])
+        main(["calibrate", str(small_dataset), "--robot-sigma-mm", "1e308", "--quiet", "--verbose"])
     err = capsys.readouterr().err
     assert exit_info.value.code == 2
     assert "--robot-sigma-mm: must be at most 10000, got '1e308'" in err

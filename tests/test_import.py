@@ -171,7 +171,7 @@ def test_calibrate_names_the_convention_mistake_of_a_poor_fit(exported, tmp_path
     options = (*FOLDER_OPTIONS, "--pose-direction", "base-to-flange", "--no-check")
     assert main(_import(exported, tmp_path / "imported", "folder", *options)) == 0
     capsys.readouterr()
-    main(["calibrate", str(tmp_path / "imported"), "--method", "opencv-park", "--no-loo"])
+    main(["calibrate", str(tmp_path / "imported"), "--method", "opencv-park", "--no-loo", "--verbose"])
     out = capsys.readouterr().out
     assert "a poor fit): the robot poses look like flange-to-base (inverted)" in out
     assert "pass --pose-direction flange-to-base" in out
@@ -205,7 +205,7 @@ def test_joints_are_imported_in_the_arms_order_and_a_wrong_order_is_named(
     assert "17 joints" not in out and "6 joints each" in out
     assert f"joint check: {said}" in out
     if not options:  # calibrating with joints in the wrong order warns instead of absorbing them
-        assert main(["calibrate", str(tmp_path / "imported"), "--no-loo", "--quiet"]) == 0
+        assert main(["calibrate", str(tmp_path / "imported"), "--no-loo", "--quiet", "--verbose"]) == 0
         warned = "the arm's self-calibration would otherwise absorb the mistake" in capsys.readouterr().out
         assert warned == (written == "ros-driver")
     if "fit the robot poses" in said:  # read in the right order, the arm's joints are the rendered ones

@@ -86,7 +86,7 @@ def test_import_from_joints_calibrates_with_the_arm_kept(joint_folder: dict, tmp
     dataset = load_dataset(out)
     arm = dataset_arm(dataset)
     assert arm is not None and arm.kinematics.d == UR5.d and arm.kinematics.name == "lab_arm"
-    assert main(["calibrate", str(out), "--no-loo", "--quiet"]) == 0
+    assert main(["calibrate", str(out), "--no-loo", "--quiet", "--verbose"]) == 0
     assert "T_flange_cam" in capsys.readouterr().out
 
 
@@ -107,7 +107,7 @@ def test_a_joint_read_with_an_offset_is_named_not_absorbed(
     argv += ["--joints", str(joints), "--robot-model", "ur5", "--board", "hec_8qr"]
     assert main([*argv, "--intrinsics", str(joint_folder["camera"]), "--no-check"]) == 0
     capsys.readouterr()
-    assert main(["calibrate", str(out), "--no-loo", "--quiet"]) == 0
+    assert main(["calibrate", str(out), "--no-loo", "--quiet", "--verbose"]) == 0
     printed = capsys.readouterr().out
     assert "the arm's self-calibration moves the zero of joint2 by -0.7" in printed, printed
     assert "check the joint readings before trusting this mount" in printed

@@ -52,6 +52,8 @@ SIGNIFICANT = 3.0
 # The arm's corrected kinematics are reported when they move the flange poses by this much (RMS).
 NOTEWORTHY_FLANGE_MOVE_M = 0.0002
 NOTEWORTHY_FLANGE_TURN_RAD = float(np.radians(0.01))
+# Between the self-calibration warning's cause and its findings (each a cause and a fix, "; " apart).
+SELF_CALIBRATED = " (self-calibration; the mount's covariance includes their uncertainty): "
 
 
 @dataclass
@@ -296,8 +298,9 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
     )
     return [
         f"the declared model did not fit (the {misfit} their noise), so the camera, board, depth and "
-        "arm were calibrated with the mount where the data showed them off (self-calibration; the "
-        "mount's covariance includes their uncertainty): " + "; ".join(findings)
+        "arm were calibrated with the mount where the data showed them off"
+        + SELF_CALIBRATED
+        + "; ".join(findings)
     ]
 
 

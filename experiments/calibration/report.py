@@ -79,7 +79,7 @@ def add_pick_error(cal: Calibration, problem: CalibrationProblem) -> None:
     cal.diagnostics[PICK_KEY] = pick_error(cal.T_flange_cam, cal.covariance, distance)
 
 
-def _pick_dict(cal: Calibration, T_true: np.ndarray | None) -> dict | None:
+def pick_dict(cal: Calibration, T_true: np.ndarray | None) -> dict | None:
     pick: PickError | None = cal.diagnostics.get(PICK_KEY)
     if pick is None:
         return None
@@ -88,7 +88,7 @@ def _pick_dict(cal: Calibration, T_true: np.ndarray | None) -> dict | None:
 
 
 def _format_pick(cal: Calibration, T_true: np.ndarray | None) -> list[str]:
-    pick = _pick_dict(cal, T_true)
+    pick = pick_dict(cal, T_true)
     if pick is None:
         return []
     truth = "" if pick["true_mm"] is None else f"; against the truth {pick['true_mm']:.3f} mm"
@@ -261,7 +261,7 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
         "covariance_convention": COVARIANCE_CONVENTION,
         "sigma_translation_mm": _floats(cal.sigma_translation_mm),
         "sigma_rotation_deg": _floats(cal.sigma_rotation_deg),
-        PICK_KEY: _pick_dict(cal, T_true),
+        PICK_KEY: pick_dict(cal, T_true),
         "T_base_board": _floats(cal.T_base_board),
         "landmarks_base": None
         if cal.landmarks_base is None

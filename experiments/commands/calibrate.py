@@ -31,6 +31,7 @@ from hec.calibration.report import (
     result_to_dict,
     write_json,
 )
+from hec.calibration.summary import format_summary
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.io.calibration_file import (
@@ -69,7 +70,8 @@ class CalibrateSettings:
     """What `hec calibrate` was asked for. method: a name in METHODS or 'all'.
     robot_sigma_mm / robot_sigma_deg: override the dataset's robot pose noise when given.
     loo: leave-one-frame-out cross-validation of the methods run (one calibration per frame), of those
-    whose folds fit in hec.calibration.loo.BUDGET_S unless loo_all."""
+    whose folds fit in hec.calibration.loo.BUDGET_S unless loo_all. verbose: the full report of one
+    method instead of its verdict and findings (hec.calibration.summary)."""
 
     method: str = DEFAULT_METHOD
     map_model: str = "board"
@@ -80,6 +82,7 @@ class CalibrateSettings:
     robot_sigma_deg: float | None = None
     loo: bool = True
     loo_all: bool = False
+    verbose: bool = False
 
     @property
     def loo_budget_s(self) -> float | None:
@@ -317,11 +320,14 @@ def calibrate_dataset(
             print(line)
         raise
     T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
-    _print_header(dataset, problem, observations, settings, source, noise_source)
+    if settings.verbose or settings.method == ALL_METHODS:
+        _print_header(dataset, problem, observations, settings, source, noise_source)
     if settings.method == ALL_METHODS:
         print(format_comparison(results, T_true))
-    else:
+    elif settings.verbose:
         print(format_calibration(results[0], T_true))
+    else:
+        print(format_summary(results[0], T_true))
     for line in convention_lines(dataset, problem, results):
         print(line)
     if json_out is not None:
@@ -403,6 +409,7 @@ def run(args: argparse.Namespace) -> int:
         robot_sigma_deg=args.robot_sigma_deg,
         loo=not args.no_loo,
         loo_all=args.loo_all,
+        verbose=args.verbose,
     )
     results = calibrate_dataset(args.dataset, settings, args.json, args.quiet)
     if not any(isinstance(r, Calibration) for r in results):

@@ -94,6 +94,11 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
         help="leave-one-frame-out also for methods whose folds would take over 30 s (batch on real data)",
     )
     p.add_argument(
+        "--verbose",
+        action="store_true",
+        help="the full report (residuals, noise, fit, folds) instead of the verdict and its findings",
+    )
+    p.add_argument(
         "--prior",
         type=Path,
         metavar="FILE",
