@@ -119,7 +119,8 @@ def format_summary(cal: Calibration, T_true: np.ndarray | None = None) -> str:
         e = ground_truth_errors(cal, T_true)
         truth = "" if pick is None or pick["true_mm"] is None else f", at the pick {pick['true_mm']:.3f} mm"
         lines.append(
-            f"vs ground truth: {e['error_translation_mm']:.3f} mm, {e['error_rotation_deg']:.4f} deg{truth}"
+            f"vs ground truth: translation error {e['error_translation_mm']:.3f} mm, rotation error "
+            f"{e['error_rotation_deg']:.4f} deg{truth}"
         )
     lines.append("the full report (residuals, noise, fit, folds): --verbose; every figure: --json")
     return "\n".join(lines)
