@@ -58,7 +58,8 @@ def test_the_charuco_sheet_is_opencvs_pattern_and_its_corners_opencvs() -> None:
     [
         ("chessboard_10x5", {"squares_x": 9}, "one must be odd and the other even"),
         ("chessboard_10x5", {"squares_x": 1}, "field 'squares_x' should be an integer >= 2"),
-        ("chessboard_10x5", {"square_m": 0.04}, "does not fit on the sheet"),
+        ("chessboard_10x5", {"square_m": 0.045}, "field 'size_m' [0.4, 0.22]: the 10x5 grid of 45 mm"),
+        ("charuco_10x5", {"square_m": 0.038}, "with 1 square of white around it (456 x 266 mm) does not fit"),
         ("chessboard_10x5", {"name": ""}, "field 'name' should be a non-empty string"),
         ("charuco_10x5", {"marker_m": 0.03}, "field 'marker_m' 0.03 should be smaller than 'square_m'"),
         ("charuco_10x5", {"dictionary": "DICT_9X9"}, "field 'dictionary' should name an OpenCV ArUco"),

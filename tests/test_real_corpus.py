@@ -13,10 +13,10 @@ fails and has to be looked at and the figures re-recorded (python -m tests.test_
 the tables of tests/data/real/README.md).
 
 Where hec stands, leave-one-frame-out mm in the base frame, in the self-calibrated model: better on
-ur_xtion_chessboard (ekf 0.577 against OpenCV Shah's 0.587), worse on franka_d435_charuco (4.107
+ur_xtion_chessboard (ekf 0.551 against OpenCV Park's 0.560), worse on franka_d435_charuco (4.107
 against Tsai's 3.824, 1.07x; its arm poses disagree with its images by about 5.5 px) and on
 ical_charuco_eye_to_hand (1.599 against Shah's 1.179, 1.36x). In the declared model hec's ekf loses on
-those two as well (4.535 against 3.892; 10.670 against 7.786).
+all three (0.613 against 0.560; 4.535 against 3.892; 10.670 against 7.786).
 """
 
 from __future__ import annotations
@@ -75,9 +75,9 @@ SETS = [
         "ur_xtion_chessboard",
         ("--rotation", "rotvec", "--intrinsics", "camera.yml"),
         18,
-        Figures((-88.9793, 24.3354, 14.5226), 764, 0.577, 0.574),
-        "opencv-shah",
-        Figures((-88.8487, 24.4344, 14.2422), 775, 0.587, 0.587),
+        Figures((-89.0190, 24.3880, 14.9218), 961, 0.551, 0.613),
+        "opencv-park",
+        Figures((-88.9960, 24.2918, 14.9379), 971, 0.560, 0.560),
     ),
     RealSet(
         "franka_d435_charuco",
