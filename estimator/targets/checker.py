@@ -271,8 +271,9 @@ class CornerFitter:
 
 class GridCornerDetector:
     """What the chessboard's and the ChArUco board's detectors share: the grid's corners found by
-    OpenCV (find_corners, per kind, named pass_name in the detections), each refined by the
-    CornerFitter, with corner_floor_px (a corner is its own centre: one floor for both)."""
+    OpenCV (find_corners, per kind, named pass_name in the detections, or the pass it adds), each
+    refined by the CornerFitter, with corner_floor_px (a corner is its own centre: one floor for
+    both)."""
 
     pass_name: str
     corner_floor: float
@@ -299,6 +300,7 @@ class GridCornerDetector:
         found = self.find_corners(gray, result)
         if found is None:
             return result
-        result.markers, result.rejected = self._fitter.fit(gray, found, self.pass_name)
+        # The pass that found the corners: the last one run (find_corners may run more).
+        result.markers, result.rejected = self._fitter.fit(gray, found, result.passes_run[-1])
         result.markers.sort(key=lambda m: m.marker_id)
         return result

@@ -8,7 +8,9 @@ the image (an odd-by-odd or even-by-even board looks the same turned, and its ID
 guess).
 
 Detection: OpenCV's findChessboardCornersSB finds the whole grid (a chessboard needs every corner
-in view; a partial view gives the frame a problem saying so, never IDs). OpenCV lists the corners
+in view; a partial view gives the frame a problem saying so, never IDs); where it finds none, the
+classic findChessboardCorners (adaptive threshold, normalised image) and cornerSubPix try, so a
+frame either finder finds is found (pass "classic" in the detections). OpenCV lists the corners
 from any of the grid's four corners; the listing is mapped to the board's IDs by the handedness of
 the grid in the image (the printed face is seen from the front) and by which squares are dark.
 Each corner is then refined and given its covariance (checker.CornerFitter).
@@ -32,6 +34,13 @@ from hec.estimator.targets.target import BoardDefinitionError, sheet_header
 # 17 views, 612 corners, 0.0113 px; 0.0275 with a template of the 4 x 4 whole squares and the sheet
 # around the grid; without the blur 0.0135).
 CORNER_FLOOR_PX = 0.011
+
+
+# The classic finder, tried when findChessboardCornersSB finds nothing, and its pass name.
+CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+CLASSIC_PASS = "classic"
+# cornerSubPix's half window, pixels: a quarter of the closest corners' spacing, within these bounds.
+SUB_PIXEL_HALF_WINDOW_PX = (2, 11)
 
 
 @dataclass(frozen=True)
@@ -91,11 +100,16 @@ class ChessboardDetector(checker.GridCornerDetector):
     def find_corners(self, gray: np.ndarray, result: Detections) -> dict[int, np.ndarray] | None:
         found, grid = cv2.findChessboardCornersSB(gray, self._pattern, flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
+            result.passes_run.append(CLASSIC_PASS)
+            found, grid = cv2.findChessboardCorners(gray, self._pattern, flags=CLASSIC_FLAGS)
+        if not found:
             result.problem = (
                 f"the chessboard's {self._pattern[0]}x{self._pattern[1]} inner corners were not all found "
-                "(a chessboard needs its whole grid in view, sharp and lit)"
+                "by either of OpenCV's finders (a chessboard needs its whole grid in view, sharp and lit)"
             )
             return None
+        if result.passes_run[-1] == CLASSIC_PASS:
+            grid = _sub_pixel(gray, grid, self._pattern)
         ids = self._corner_ids(gray, grid.reshape(self._pattern[1], self._pattern[0], 2))
         return dict(zip(ids.ravel(), grid.reshape(-1, 2).astype(np.float64), strict=True))
 
@@ -127,3 +141,16 @@ class ChessboardDetector(checker.GridCornerDetector):
                 if contrast > best_contrast:
                     best, best_contrast = ids, contrast
         return best
+
+
+def _sub_pixel(gray: np.ndarray, grid: np.ndarray, pattern: tuple[int, int]) -> np.ndarray:
+    """The classic finder's (N, 1, 2) corners refined by cornerSubPix (its corners are only pixel-near),
+    with a window a quarter of the closest corners' spacing (the template fit then refines them)."""
+    rows = grid.reshape(pattern[1], pattern[0], 2)
+    spacing = min(
+        float(np.linalg.norm(np.diff(rows, axis=1), axis=2).min()),
+        float(np.linalg.norm(np.diff(rows, axis=0), axis=2).min()),
+    )
+    half = int(np.clip(spacing / 4, *SUB_PIXEL_HALF_WINDOW_PX))
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    return cv2.cornerSubPix(gray, grid.astype(np.float32), (half, half), (-1, -1), criteria)
