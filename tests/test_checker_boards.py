@@ -161,3 +161,39 @@ def test_a_chessboard_only_the_classic_finder_finds_is_found_by_it() -> None:
         assert marker.found_by == "classic"
         expected = apply(H, sheet_px(board, board.marker_corners(marker.marker_id)))
         np.testing.assert_allclose(marker.corners_px, expected, atol=0.5)
+
+
+def test_a_chessboard_file_may_give_inner_corners_and_leave_out_the_sheet() -> None:
+    """What a calibration tool states (inner corners, the square) is a board: squares one more each,
+    the sheet the grid's own size (edge to edge) and a name from the grid; a sheet given still counts."""
+    header = {"format": "hec-board", "version": 1, "kind": "chessboard"}
+    board = board_from_dict(header | {"inner_corners": [9, 6], "square_m": 0.026}, "board.json")
+    assert isinstance(board, ChessboardBoard)
+    assert (board.squares_x, board.squares_y, board.name) == (10, 7, "chessboard_10x7")
+    assert board.size_m == pytest.approx((0.26, 0.182))
+    assert len(board.marker_ids) == 54
+    assert board_from_dict(board.to_dict(), "copy") == board
+    sheet = board_from_dict(header | {"inner_corners": [9, 6], "square_m": 0.026, "size_m": [0.297, 0.21]})
+    assert sheet.size_m == (0.297, 0.21)
+    # An edge-to-edge sheet given as squares works too.
+    squares = {"squares_x": 10, "squares_y": 7, "square_m": 0.026, "size_m": [0.26, 0.182], "name": "b"}
+    assert board_from_dict(header | squares).squares_x == 10
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"inner_corners": [9]}, "field 'inner_corners' should be [x, y], the inner corners along each side"),
+        ({"inner_corners": [9, 0]}, "field 'inner_corners' should be [x, y]"),
+        ({"inner_corners": [9, 6], "squares_x": 9}, "field 'squares_x' 9 disagrees with 'inner_corners'"),
+        ({"inner_corners": [9, 7]}, "field 'inner_corners' [9, 7] (10x8 squares): one must be odd"),
+        ({"inner_corners": [9, 6], "size_m": [0.25, 0.2]}, "field 'size_m' [0.25, 0.2]: the 10x7 grid"),
+        ({"inner_corners": [9, 6], "square_m": -1}, "field 'square_m' should be a number > 0"),
+        ({}, "field 'squares_x' should be an integer >= 2, got None"),
+    ],
+)
+def test_a_bad_inner_corners_file_is_refused_naming_the_file_and_field(change: dict, message: str) -> None:
+    d = {"format": "hec-board", "version": 1, "kind": "chessboard", "square_m": 0.026} | change
+    with pytest.raises(BoardDefinitionError, match="^board.json: ") as error:
+        board_from_dict(d, "board.json")
+    assert message in str(error.value) and "\n" not in str(error.value)

@@ -1,11 +1,13 @@
 """The chessboard: a grid of black and white squares whose inner corners are one-point markers.
 
 Board file fields: ``squares_x``, ``squares_y`` (squares, not inner corners: OpenCV's pattern
-size is one less each), ``square_m`` and the sheet's ``size_m``; grid, corner IDs and frames as
-hec.estimator.targets.checker says. One of squares_x, squares_y must be odd and the other even: only
-then does a half-turn change the squares' colours, so the board's orientation can be read off
-the image (an odd-by-odd or even-by-even board looks the same turned, and its IDs would be a
-guess).
+size is one less each) or ``inner_corners`` [x, y] (OpenCV's pattern size, as calibration tools
+state it: one less than the squares each), ``square_m``, and the sheet's ``size_m`` (optional: the
+grid's own size, squares reaching the sheet's edge) and ``name`` (optional: chessboard_<X>x<Y>,
+squares); grid, corner IDs and frames as hec.estimator.targets.checker says. One of squares_x,
+squares_y must be odd and the other even: only then does a half-turn change the squares' colours,
+so the board's orientation can be read off the image (an odd-by-odd or even-by-even board looks the
+same turned, and its IDs would be a guess).
 
 Detection: OpenCV's findChessboardCornersSB finds the whole grid (a chessboard needs every corner
 in view; a partial view gives the frame a problem saying so, never IDs); where it finds none, the
@@ -27,7 +29,13 @@ from hec.estimator.targets import checker
 from hec.estimator.targets.detection import Detections
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import BoardDefinitionError, sheet_header
+from hec.estimator.targets.target import (
+    BoardDefinitionError,
+    integer_field,
+    positive_field,
+    sheet_fields,
+    sheet_header,
+)
 
 # Error per coordinate image noise does not explain at a chessboard corner, pixels: the RMS on
 # noise-free renders of the default trajectory, its blur kept (noise.rgb.sigma = 0; chessboard_10x5:
@@ -77,14 +85,49 @@ class ChessboardBoard(checker.GridCorners):
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> ChessboardBoard:
         """Validate and build; errors name ``source`` and the field."""
-        board = cls(*checker.check_grid(d, source))
+        board = cls(*_grid_fields(d, source))
         if (board.squares_x + board.squares_y) % 2 == 0:
+            given = (
+                f"field 'inner_corners' {d['inner_corners']} ({board.squares_x}x{board.squares_y} squares)"
+                if "inner_corners" in d
+                else f"fields 'squares_x' {board.squares_x} and 'squares_y' {board.squares_y}"
+            )
             raise BoardDefinitionError(
-                f"{source}: fields 'squares_x' {board.squares_x} and 'squares_y' {board.squares_y}: one must "
-                "be odd and the other even, else the board looks the same turned by half a turn and its "
-                "orientation cannot be read from an image"
+                f"{source}: {given}: one must be odd and the other even, else the board looks the same "
+                "turned by half a turn and its orientation cannot be read from an image"
             )
         return board
+
+
+def _grid_fields(d: dict, source: str) -> tuple[str, tuple[float, float], int, int, float]:
+    """name, size_m, squares_x, squares_y, square_m of a chessboard file (module doc), validated;
+    errors name source and the field."""
+    if "inner_corners" not in d:
+        squares = (integer_field(d, "squares_x", source, 2), integer_field(d, "squares_y", source, 2))
+    else:
+        inner = d["inner_corners"]
+        if not (
+            isinstance(inner, list)
+            and len(inner) == 2
+            and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in inner)
+        ):
+            raise BoardDefinitionError(
+                f"{source}: field 'inner_corners' should be [x, y], the inner corners along each side "
+                f"(integers >= 1, one less than the squares), got {inner!r}"
+            )
+        squares = (inner[0] + 1, inner[1] + 1)
+        for key, count in zip(("squares_x", "squares_y"), squares, strict=True):
+            if key in d and d[key] != count:
+                raise BoardDefinitionError(
+                    f"{source}: field '{key}' {d[key]!r} disagrees with 'inner_corners' {inner}: "
+                    f"{count} squares have {count - 1} inner corners"
+                )
+    square_m = positive_field(d, "square_m", source)
+    grid_m = checker.grid_size_m(*squares, square_m)
+    header = {"name": f"chessboard_{squares[0]}x{squares[1]}", "size_m": list(grid_m)} | d
+    name, size = sheet_fields(header, source)
+    checker.check_grid_fits(source, size, *squares, square_m)
+    return name, size, *squares, square_m
 
 
 class ChessboardDetector(checker.GridCornerDetector):
