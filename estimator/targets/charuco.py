@@ -92,7 +92,7 @@ class CharucoBoard(checker.GridCorners):
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> CharucoBoard:
         """Validate and build; errors name ``source`` and the field."""
-        name, size, squares_x, squares_y, square_m = checker.check_grid(d, source)
+        name, size, squares_x, squares_y, square_m = checker.check_grid(d, source, white_squares_around=1)
         marker_m = positive_field(d, "marker_m", source)
         if marker_m >= square_m:
             raise BoardDefinitionError(
@@ -128,6 +128,7 @@ class CharucoDetector(checker.GridCornerDetector):
 
     pass_name = "charuco"
     corner_floor = CORNER_FLOOR_PX
+    whole_squares = True  # its white squares hold markers (checker's module doc)
 
     def __init__(self, board: CharucoBoard, settings: DetectorSettings | None = None) -> None:
         super().__init__(board, settings)

@@ -9,10 +9,19 @@ x right, y up) corner (r, c) sits at x = -W/2 + (c + 1) square_m, y = H/2 - (r +
 and H the grid's width and height. OpenCV's board frame starts at the grid's top-left corner with
 y down and z into the board: p_opencv = (x + W/2, H/2 - y, -z).
 
-Sub-pixel corners: the 2 x 2 squares around a corner, with one square of the board around them,
-are drawn from the board's own definition as a template and aligned to the image by a homography
+Sub-pixel corners: the 2 x 2 squares around a corner and half of each square around them are drawn
+from the board's own definition as a template and aligned to the image by a homography
 (qr_fit.fit_template, the QR codes' ECC fit); the corner is the block's centre, its covariance
-the fit's centre covariance plus a floor measured on noise-free renders.
+the fit's centre covariance plus a floor measured on noise-free renders. The template holds only
+the grid: where the grid ends sooner it stops in the middle of the outer squares, so whatever lies
+beyond (a white margin, a sheet cut at the grid, the plate or table behind) is never compared. Its
+edges all fall in the middle of squares, where the image is flat: an edge there would be blurred
+into the image's side of the cut and not the template's, which shifts a corner whose template is
+cut unevenly (0.08 px at the grid's edge on sharp views). The half squares around the block are
+needed: the 2 x 2 squares alone are two lines crossing, which fix the corner but leave a
+homography's scale along them free. A ChArUco board's white squares hold markers, whose bits a cut
+in the middle of a square would cross, so its template keeps the 4 x 4 squares around the corner
+whole, the sheet beyond the grid drawn as the board file says (whole_squares).
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ import numpy as np
 
 from hec.estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
 from hec.estimator.targets.qr import DetectorSettings
-from hec.estimator.targets.qr_fit import MarkerFitError, TemplateFrame, fit_template
+from hec.estimator.targets.qr_fit import UNIT_SQUARE, FitWords, MarkerFitError, TemplateFrame, fit_template
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
 from hec.estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
 
@@ -35,6 +44,27 @@ MAX_TEMPLATE_PX_PER_SQUARE = 24
 # The image cut for a corner's fit reaches this far around its 2 x 2 block, in block sides (the
 # template's one-square surround is 0.5).
 REGION_FRACTION = 0.6
+# How far the template reaches from the corner, in squares (module doc).
+TEMPLATE_REACH_SQUARES = 1.5
+# A template cut in the middle of squares needs this much of the squares around the corner in the
+# image, in squares either side (the rest of it may leave the image: those pixels take no part); a
+# whole-squares template needs its 2 x 2 block in the image.
+IN_VIEW_SQUARES = 0.5
+# In symbol coordinates (the 2 x 2 block is the unit square).
+_IN_VIEW = 0.5 + IN_VIEW_SQUARES / 2 * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+# How the fit's errors say what went wrong, for the cut and the whole-squares template.
+CORNER_WORDS = FitWords(
+    alignment="squares fit",
+    outside=f"the corner's squares are not in the image {IN_VIEW_SQUARES:g} square either side of it",
+    leaves=f"the fitted corner is not {IN_VIEW_SQUARES:g} square inside the image",
+    rough_source="OpenCV's",
+)
+WHOLE_SQUARES_WORDS = FitWords(
+    alignment="squares fit",
+    outside="the corner's 2 x 2 squares are partly outside the image",
+    leaves="the fitted corner's 2 x 2 squares leave the image",
+    rough_source="OpenCV's",
+)
 
 
 class GridCorners:
@@ -100,42 +130,81 @@ def squares_block(squares_x: int, squares_y: int, square_m: float) -> CellBlock:
     return CellBlock((rows + cols) % 2 == 0, -width / 2, height / 2, square_m)
 
 
-def check_grid(d: dict, source: str) -> tuple[str, tuple[float, float], int, int, float]:
+def check_grid(
+    d: dict, source: str, white_squares_around: int = 0
+) -> tuple[str, tuple[float, float], int, int, float]:
     """name, size_m, squares_x, squares_y, square_m of a board file, validated (errors name source
-    and the field); the grid must fit on the sheet with a square of white around it (the corner
-    fit's surround)."""
+    and the field); the grid must fit on the sheet with white_squares_around squares of white
+    around it (a whole-squares corner fit's surround, CornerFitter)."""
     name, size = sheet_fields(d, source)
     squares_x = integer_field(d, "squares_x", source, least=2)
     squares_y = integer_field(d, "squares_y", source, least=2)
     square_m = positive_field(d, "square_m", source)
-    width, height = grid_size_m(squares_x, squares_y, square_m)
-    if width + 2 * square_m > size[0] + 1e-12 or height + 2 * square_m > size[1] + 1e-12:
-        raise BoardDefinitionError(
-            f"{source}: the {squares_x}x{squares_y} grid of {square_m * 1e3:g} mm squares with a square of "
-            f"white around it ({(width + 2 * square_m) * 1e3:.0f} x {(height + 2 * square_m) * 1e3:.0f} mm) "
-            f"does not fit on the sheet 'size_m' {list(size)}"
-        )
+    check_grid_fits(source, size, squares_x, squares_y, square_m, white_squares_around)
     return name, size, squares_x, squares_y, square_m
+
+
+def check_grid_fits(
+    source: str,
+    size_m: tuple[float, float],
+    squares_x: int,
+    squares_y: int,
+    square_m: float,
+    white_squares_around: int = 0,
+) -> None:
+    """BoardDefinitionError naming source and 'size_m' unless the grid, with white_squares_around
+    squares of white around it, fits on the sheet."""
+    pad = 2 * white_squares_around * square_m
+    width, height = (s + pad for s in grid_size_m(squares_x, squares_y, square_m))
+    if width > size_m[0] + 1e-12 or height > size_m[1] + 1e-12:
+        around = f" with {white_squares_around} square of white around it" if white_squares_around else ""
+        raise BoardDefinitionError(
+            f"{source}: field 'size_m' {list(size_m)}: the {squares_x}x{squares_y} grid of "
+            f"{square_m * 1e3:g} mm squares{around} ({width * 1e3:.0f} x {height * 1e3:.0f} mm) does not "
+            "fit on the sheet"
+        )
 
 
 class CornerFitter:
     """Sub-pixel corners of a grid board (module doc): board, a GridCorners with cell_blocks(),
-    what it prints; floor_px: error per coordinate image noise does not explain."""
+    what it prints; floor_px: error per coordinate image noise does not explain; whole_squares: the
+    template is the 4 x 4 squares around the corner, sheet included (ChArUco), not cut in the middle
+    of squares and at the grid."""
 
-    def __init__(self, board: GridCorners, floor_px: float, min_correlation: float) -> None:
+    def __init__(
+        self, board: GridCorners, floor_px: float, min_correlation: float, whole_squares: bool = False
+    ) -> None:
+        self._whole_squares = whole_squares
         self._blocks = board.cell_blocks()
         self._square_m = board.square_m
+        self._squares = (board.squares_x, board.squares_y)
         self._xy = lambda corner_id: board.marker_center(corner_id)[:2]
         self._floor_px = floor_px
         self._min_correlation = min_correlation
         self._template = functools.lru_cache(maxsize=1024)(self._draw_template)
 
-    def _draw_template(self, corner_id: int, px_per_square: int) -> np.ndarray:
-        """(4p, 4p) float32: the 4 x 4 squares centred on the corner, p pixels per square."""
+    def _draw_template(self, corner_id: int, p: int) -> tuple[np.ndarray, TemplateFrame]:
+        """The template of a corner at p pixels per square, float32 (module doc), and where its 2 x 2
+        block lies in it."""
+        r, c = divmod(corner_id, self._squares[0] - 1)
+        # The template's extent from the corner in squares, u right and v down (module doc).
+        u0, v0, u1, v1 = (-2, -2, 2, 2)
+        if not self._whole_squares:
+            u0, u1 = (
+                max(-TEMPLATE_REACH_SQUARES, 0.5 - (c + 1)),
+                min(TEMPLATE_REACH_SQUARES, self._squares[0] - c - 1.5),
+            )
+            v0, v1 = (
+                max(-TEMPLATE_REACH_SQUARES, 0.5 - (r + 1)),
+                min(TEMPLATE_REACH_SQUARES, self._squares[1] - r - 1.5),
+            )
+        u0, u1, v0, v1 = (round(e * p) for e in (u0, u1, v0, v1))
         x, y = self._xy(corner_id)
-        side = 4 * self._square_m
-        patch = draw_sheet((side, side), list(self._blocks), px_per_square / self._square_m, 4, (x, y))
-        return patch.astype(np.float32)
+        px_m = self._square_m / p
+        centre = (x + 0.5 * (u0 + u1) * px_m, y - 0.5 * (v0 + v1) * px_m)
+        size = ((u1 - u0) * px_m, (v1 - v0) * px_m)
+        patch = draw_sheet(size, list(self._blocks), 1.0 / px_m, 4, centre)
+        return patch.astype(np.float32), TemplateFrame(2 * p, -p - u0, -p - v0)
 
     def fit(
         self, gray: np.ndarray, found: dict[int, np.ndarray], found_by: str
@@ -165,16 +234,19 @@ class CornerFitter:
             rough = cv2.perspectiveTransform((xy + block).reshape(-1, 1, 2), H).reshape(4, 2)
             side_px = float(np.linalg.norm(rough - np.roll(rough, 1, axis=0), axis=1).mean())
             p = int(np.clip(round(side_px / 2), MIN_TEMPLATE_PX_PER_SQUARE, MAX_TEMPLATE_PX_PER_SQUARE))
+            template, frame = self._template(int(corner_id), p)
             try:
                 fit = fit_template(
                     gray,
                     rough,
-                    self._template(int(corner_id), p),
-                    TemplateFrame(2 * p, p),
+                    template,
+                    frame,
                     REGION_FRACTION,
                     corner_floor_px=0.0,
                     center_floor_px=self._floor_px,
                     min_correlation=self._min_correlation,
+                    words=WHOLE_SQUARES_WORDS if self._whole_squares else CORNER_WORDS,
+                    in_view=UNIT_SQUARE if self._whole_squares else _IN_VIEW,
                 )
             except MarkerFitError as exc:
                 rejected.append(Rejection(f"corner {corner_id}: {exc}", int(corner_id), None, rough))
@@ -199,17 +271,21 @@ class CornerFitter:
 
 class GridCornerDetector:
     """What the chessboard's and the ChArUco board's detectors share: the grid's corners found by
-    OpenCV (find_corners, per kind, named pass_name in the detections), each refined by the
-    CornerFitter, with corner_floor_px (a corner is its own centre: one floor for both)."""
+    OpenCV (find_corners, per kind, named pass_name in the detections, or the pass it adds), each
+    refined by the CornerFitter, with corner_floor_px (a corner is its own centre: one floor for
+    both)."""
 
     pass_name: str
     corner_floor: float
+    whole_squares = False  # CornerFitter's
 
     def __init__(self, board: GridCorners, settings: DetectorSettings | None = None) -> None:
         self.board = board
         self.settings = settings or DetectorSettings()
         self.corner_floor_px = self.center_floor_px = max(self.settings.center_floor_px, self.corner_floor)
-        self._fitter = CornerFitter(board, self.corner_floor_px, self.settings.min_correlation)
+        self._fitter = CornerFitter(
+            board, self.corner_floor_px, self.settings.min_correlation, self.whole_squares
+        )
 
     def find_corners(self, gray: np.ndarray, result: Detections) -> dict[int, np.ndarray] | None:
         """OpenCV's corners, corner ID -> (2,) pixels; None with result.problem set when none."""
@@ -224,6 +300,7 @@ class GridCornerDetector:
         found = self.find_corners(gray, result)
         if found is None:
             return result
-        result.markers, result.rejected = self._fitter.fit(gray, found, self.pass_name)
+        # The pass that found the corners: the last one run (find_corners may run more).
+        result.markers, result.rejected = self._fitter.fit(gray, found, result.passes_run[-1])
         result.markers.sort(key=lambda m: m.marker_id)
         return result

@@ -1,14 +1,18 @@
 """The chessboard: a grid of black and white squares whose inner corners are one-point markers.
 
 Board file fields: ``squares_x``, ``squares_y`` (squares, not inner corners: OpenCV's pattern
-size is one less each), ``square_m`` and the sheet's ``size_m``; grid, corner IDs and frames as
-hec.estimator.targets.checker says. One of squares_x, squares_y must be odd and the other even: only
-then does a half-turn change the squares' colours, so the board's orientation can be read off
-the image (an odd-by-odd or even-by-even board looks the same turned, and its IDs would be a
-guess).
+size is one less each) or ``inner_corners`` [x, y] (OpenCV's pattern size, as calibration tools
+state it: one less than the squares each), ``square_m``, and the sheet's ``size_m`` (optional: the
+grid's own size, squares reaching the sheet's edge) and ``name`` (optional: chessboard_<X>x<Y>,
+squares); grid, corner IDs and frames as hec.estimator.targets.checker says. One of squares_x,
+squares_y must be odd and the other even: only then does a half-turn change the squares' colours,
+so the board's orientation can be read off the image (an odd-by-odd or even-by-even board looks the
+same turned, and its IDs would be a guess).
 
 Detection: OpenCV's findChessboardCornersSB finds the whole grid (a chessboard needs every corner
-in view; a partial view gives the frame a problem saying so, never IDs). OpenCV lists the corners
+in view; a partial view gives the frame a problem saying so, never IDs); where it finds none, the
+classic findChessboardCorners (adaptive threshold, normalised image) and cornerSubPix try, so a
+frame either finder finds is found (pass "classic" in the detections). OpenCV lists the corners
 from any of the grid's four corners; the listing is mapped to the board's IDs by the handedness of
 the grid in the image (the printed face is seen from the front) and by which squares are dark.
 Each corner is then refined and given its covariance (checker.CornerFitter).
@@ -25,12 +29,26 @@ from hec.estimator.targets import checker
 from hec.estimator.targets.detection import Detections
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import BoardDefinitionError, sheet_header
+from hec.estimator.targets.target import (
+    BoardDefinitionError,
+    integer_field,
+    positive_field,
+    sheet_fields,
+    sheet_header,
+)
 
 # Error per coordinate image noise does not explain at a chessboard corner, pixels: the RMS on
-# noise-free renders of the default trajectory (chessboard_10x5: 17 views, 612 corners; 0.53 px with
-# templates of at most 12 px per square, 0.025 with 48).
-CORNER_FLOOR_PX = 0.026
+# noise-free renders of the default trajectory, its blur kept (noise.rgb.sigma = 0; chessboard_10x5:
+# 17 views, 612 corners, 0.0113 px; 0.0275 with a template of the 4 x 4 whole squares and the sheet
+# around the grid; without the blur 0.0135).
+CORNER_FLOOR_PX = 0.011
+
+
+# The classic finder, tried when findChessboardCornersSB finds nothing, and its pass name.
+CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+CLASSIC_PASS = "classic"
+# cornerSubPix's half window, pixels: a quarter of the closest corners' spacing, within these bounds.
+SUB_PIXEL_HALF_WINDOW_PX = (2, 11)
 
 
 @dataclass(frozen=True)
@@ -67,14 +85,49 @@ class ChessboardBoard(checker.GridCorners):
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> ChessboardBoard:
         """Validate and build; errors name ``source`` and the field."""
-        board = cls(*checker.check_grid(d, source))
+        board = cls(*_grid_fields(d, source))
         if (board.squares_x + board.squares_y) % 2 == 0:
+            given = (
+                f"field 'inner_corners' {d['inner_corners']} ({board.squares_x}x{board.squares_y} squares)"
+                if "inner_corners" in d
+                else f"fields 'squares_x' {board.squares_x} and 'squares_y' {board.squares_y}"
+            )
             raise BoardDefinitionError(
-                f"{source}: fields 'squares_x' {board.squares_x} and 'squares_y' {board.squares_y}: one must "
-                "be odd and the other even, else the board looks the same turned by half a turn and its "
-                "orientation cannot be read from an image"
+                f"{source}: {given}: one must be odd and the other even, else the board looks the same "
+                "turned by half a turn and its orientation cannot be read from an image"
             )
         return board
+
+
+def _grid_fields(d: dict, source: str) -> tuple[str, tuple[float, float], int, int, float]:
+    """name, size_m, squares_x, squares_y, square_m of a chessboard file (module doc), validated;
+    errors name source and the field."""
+    if "inner_corners" not in d:
+        squares = (integer_field(d, "squares_x", source, 2), integer_field(d, "squares_y", source, 2))
+    else:
+        inner = d["inner_corners"]
+        if not (
+            isinstance(inner, list)
+            and len(inner) == 2
+            and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in inner)
+        ):
+            raise BoardDefinitionError(
+                f"{source}: field 'inner_corners' should be [x, y], the inner corners along each side "
+                f"(integers >= 1, one less than the squares), got {inner!r}"
+            )
+        squares = (inner[0] + 1, inner[1] + 1)
+        for key, count in zip(("squares_x", "squares_y"), squares, strict=True):
+            if key in d and d[key] != count:
+                raise BoardDefinitionError(
+                    f"{source}: field '{key}' {d[key]!r} disagrees with 'inner_corners' {inner}: "
+                    f"{count} squares have {count - 1} inner corners"
+                )
+    square_m = positive_field(d, "square_m", source)
+    grid_m = checker.grid_size_m(*squares, square_m)
+    header = {"name": f"chessboard_{squares[0]}x{squares[1]}", "size_m": list(grid_m)} | d
+    name, size = sheet_fields(header, source)
+    checker.check_grid_fits(source, size, *squares, square_m)
+    return name, size, *squares, square_m
 
 
 class ChessboardDetector(checker.GridCornerDetector):
@@ -90,11 +143,16 @@ class ChessboardDetector(checker.GridCornerDetector):
     def find_corners(self, gray: np.ndarray, result: Detections) -> dict[int, np.ndarray] | None:
         found, grid = cv2.findChessboardCornersSB(gray, self._pattern, flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
+            result.passes_run.append(CLASSIC_PASS)
+            found, grid = cv2.findChessboardCorners(gray, self._pattern, flags=CLASSIC_FLAGS)
+        if not found:
             result.problem = (
                 f"the chessboard's {self._pattern[0]}x{self._pattern[1]} inner corners were not all found "
-                "(a chessboard needs its whole grid in view, sharp and lit)"
+                "by either of OpenCV's finders (a chessboard needs its whole grid in view, sharp and lit)"
             )
             return None
+        if result.passes_run[-1] == CLASSIC_PASS:
+            grid = _sub_pixel(gray, grid, self._pattern)
         ids = self._corner_ids(gray, grid.reshape(self._pattern[1], self._pattern[0], 2))
         return dict(zip(ids.ravel(), grid.reshape(-1, 2).astype(np.float64), strict=True))
 
@@ -126,3 +184,16 @@ class ChessboardDetector(checker.GridCornerDetector):
                 if contrast > best_contrast:
                     best, best_contrast = ids, contrast
         return best
+
+
+def _sub_pixel(gray: np.ndarray, grid: np.ndarray, pattern: tuple[int, int]) -> np.ndarray:
+    """The classic finder's (N, 1, 2) corners refined by cornerSubPix (its corners are only pixel-near),
+    with a window a quarter of the closest corners' spacing (the template fit then refines them)."""
+    rows = grid.reshape(pattern[1], pattern[0], 2)
+    spacing = min(
+        float(np.linalg.norm(np.diff(rows, axis=1), axis=2).min()),
+        float(np.linalg.norm(np.diff(rows, axis=0), axis=2).min()),
+    )
+    half = int(np.clip(spacing / 4, *SUB_PIXEL_HALF_WINDOW_PX))
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    return cv2.cornerSubPix(gray, grid.astype(np.float32), (half, half), (-1, -1), criteria)

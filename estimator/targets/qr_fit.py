@@ -263,16 +263,33 @@ def _side_px(corners_px: np.ndarray) -> float:
 @dataclass(frozen=True)
 class TemplateFrame:
     """Where the symbol (the unit square of symbol coordinates) lies in a template image: it spans
-    template pixels [offset_px - 0.5, offset_px + side_px - 0.5] along both axes (pixel centres
-    at integers, so the symbol's edges fall on pixel edges)."""
+    template pixels [offset_px - 0.5, offset_px + side_px - 0.5] along u (right) and the same from
+    offset_v_px along v (down; None: offset_px), pixel centres at integers, so the symbol's edges
+    fall on pixel edges. An offset is negative where the template stops inside the symbol."""
 
     side_px: int
     offset_px: int
+    offset_v_px: int | None = None
 
     def ab_to_template(self) -> np.ndarray:
         """(3, 3) symbol coordinates (a, b, 1) -> template pixels."""
         s, o = float(self.side_px), self.offset_px - 0.5
-        return np.array([[s, 0.0, o], [0.0, s, o], [0.0, 0.0, 1.0]])
+        o_v = o if self.offset_v_px is None else self.offset_v_px - 0.5
+        return np.array([[s, 0.0, o], [0.0, s, o_v], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class FitWords:
+    """How fit_template's errors say what went wrong: the alignment's name, what is out of the image
+    before and after the fit, and who gave the rough corners."""
+
+    alignment: str = "code alignment"
+    outside: str = "the code itself (not only its quiet zone) is partly outside the image"
+    leaves: str = "the fitted code leaves the image"
+    rough_source: str = "the decoder's"
+
+
+CODE_WORDS = FitWords()
 
 
 def fit_template(
@@ -285,6 +302,8 @@ def fit_template(
     center_floor_px: float,
     max_iterations: int = 30,
     min_correlation: float = 0.8,
+    words: FitWords = CODE_WORDS,
+    in_view: np.ndarray = UNIT_SQUARE,
 ) -> MarkerFit:
     """Align a known template to the image by a homography (ECC) and give the symbol's corners.
 
@@ -293,12 +312,14 @@ def fit_template(
     by ``frame``. region_fraction: how far around the symbol, as a fraction of its side, the image
     is cut for the fit (the template's surround and a margin). Floors as fit_marker's. Returns the
     MarkerFit with module_agreement 1 (the caller measures it when it has modules); raises
-    MarkerFitError as fit_marker.
+    MarkerFitError as fit_marker, worded by ``words``. in_view: (N, 2) symbol coordinates that must
+    be in the image before and after the fit (the symbol's corners unless given); template pixels
+    outside the image take no part in the fit.
     """
     corners_px = np.asarray(corners_px, dtype=np.float64)
     side_px = _side_px(corners_px)
-    if not fits_in_image(corners_px, 0.0, gray.shape):
-        raise MarkerFitError("the code itself (not only its quiet zone) is partly outside the image")
+    if not fits_in_image(apply_homography(homography_from_corners(corners_px), in_view), 0.0, gray.shape):
+        raise MarkerFitError(words.outside)
     S_ab_to_tpl = frame.ab_to_template()
     roi_origin, roi = _region(gray, corners_px, quiet_fraction=region_fraction)
     shift = np.array([[1.0, 0.0, -roi_origin[0]], [0.0, 1.0, -roi_origin[1]], [0.0, 0.0, 1.0]])
@@ -311,19 +332,19 @@ def fit_template(
         )
     except cv2.error as exc:
         raise MarkerFitError(
-            f"code alignment did not converge ({str(exc).strip().splitlines()[-1]})"
+            f"{words.alignment} did not converge ({str(exc).strip().splitlines()[-1]})"
         ) from None
     H_roi_tpl = warp.astype(np.float64) / warp[2, 2]
     H_img_ab = np.linalg.inv(shift) @ H_roi_tpl @ S_ab_to_tpl
     H_img_ab /= H_img_ab[2, 2]
     refined = apply_homography(H_img_ab, UNIT_SQUARE)
     if correlation < min_correlation:
-        raise MarkerFitError(f"code alignment correlation {correlation:.2f} < {min_correlation}")
+        raise MarkerFitError(f"{words.alignment} correlation {correlation:.2f} < {min_correlation}")
     moved = float(np.abs(refined - corners_px).max())
     if moved > max(3.0, 0.15 * side_px):
-        raise MarkerFitError(f"code alignment moved a corner by {moved:.1f} px from the decoder's")
-    if not fits_in_image(refined, 0.0, gray.shape):
-        raise MarkerFitError("the fitted code leaves the image")
+        raise MarkerFitError(f"{words.alignment} moved a corner by {moved:.1f} px from {words.rough_source}")
+    if not fits_in_image(apply_homography(H_img_ab, in_view), 0.0, gray.shape):
+        raise MarkerFitError(words.leaves)
     noise_cov, sigma = _corner_covariance(roi, H_roi_tpl, template, refined - roi_origin)
     J_center = point_jacobian_wrt_corners(refined, np.array([[0.5, 0.5]]))[0]
     return MarkerFit(
