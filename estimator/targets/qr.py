@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from hec.estimator.targets.board import BoardDefinition
+from hec.estimator.targets.board import QUIET_ZONE_MODULES, BoardDefinition
 from hec.estimator.targets.detection import Detections, MarkerDetection, Rejection, start_detection
 from hec.estimator.targets.qr_decode import BACKENDS, DecodedSymbol, decode_qr
 from hec.estimator.targets.qr_fit import (
@@ -44,8 +44,6 @@ from hec.estimator.targets.qr_symbol import SymbolSpec, read_format
 DEFAULT_PASSES = ("zxing@1", "zxing@2", "pyzbar@1", "pyzbar@2")
 # Data-module agreement of two unrelated bit streams is about 0.5; up to this, the data differ.
 RANDOM_DATA_AGREEMENT = 0.6
-# Quiet-zone modules a marker needs in the image for the passes to be expected to decode it.
-DECODER_QUIET_MODULES = 2.0
 
 
 @dataclass(frozen=True)
@@ -259,6 +257,7 @@ class QRDetector:
                 corner_floor_px=self.settings.corner_floor_px,
                 center_floor_px=self.settings.center_floor_px,
                 min_correlation=self.settings.min_correlation,
+                not_paper_ab=self.board.not_paper_around(candidate.marker_id),
             )
         except MarkerFitError as exc:
             result.rejected.append(
@@ -316,7 +315,7 @@ class QRDetector:
         known = {c.marker_id: c.corners_px for c in candidates}
         if set(known) >= set(self.board.marker_ids):
             return True
-        return bool(known) and not self._missing_in_view(shape, known, set(known), DECODER_QUIET_MODULES)
+        return bool(known) and not self._missing_in_view(shape, known, set(known), QUIET_ZONE_MODULES)
 
     def _report_missing(self, shape: tuple[int, ...], result: Detections) -> None:
         """A rejection for every marker whose code (if not its quiet zone) the found ones put in view."""
@@ -329,7 +328,7 @@ class QRDetector:
             n = self.board.symbol(marker_id).modules
             cut = (
                 ""
-                if self._in_view(shape, corners, n, DECODER_QUIET_MODULES)
+                if self._in_view(shape, corners, n, QUIET_ZONE_MODULES)
                 else "; its quiet zone leaves the image"
             )
             result.rejected.append(

@@ -46,6 +46,9 @@ DEFAULT_CORNER_FLOOR_PX = 0.013
 DEFAULT_CENTER_FLOOR_PX = 0.0036
 # Gaussian kernel size (pixels) both images are smoothed with before alignment.
 ECC_SMOOTHING = 3
+# Fits (at most) of a code whose quiet zone holds something else than paper, each masking it where the
+# previous one placed the code: the rough corners can be off by half a module (fit_template).
+NOT_PAPER_PASSES = 3
 # Module agreement that leaves no doubt about an ordering (a wrong one scores about 0.5-0.7).
 CLEAR_AGREEMENT = 0.95
 # The 8 ways four corners can be listed: 4 starting corners x 2 windings.
@@ -224,6 +227,7 @@ def fit_marker(
     min_correlation: float = 0.8,
     max_template_px_per_module: int = 3,
     dark_corners: bool = False,
+    not_paper_ab: np.ndarray | None = None,
 ) -> MarkerFit:
     """Refine oriented corners by aligning the marker's code to the image.
 
@@ -234,8 +238,10 @@ def fit_marker(
     clipped to [2, max_template_px_per_module]: a template much coarser than the image biases the
     corners (AprilTag cells of 8-11 px fitted with 3 px ones shrank the tag by 0.04 px; QR modules
     of 3-5 px gain nothing from more). dark_corners: black squares touch the marker's corners from
-    outside (Kalibr's AprilGrid; _template). Raises MarkerFitError when the marker with its quiet
-    zone leaves the image, the fit diverges, or its correlation stays below min_correlation.
+    outside (Kalibr's AprilGrid; _template). not_paper_ab: (K, 4) rectangles in symbol coordinates
+    where the sheet around the code is not plain paper (board.not_paper_around; fit_template).
+    Raises MarkerFitError when the marker with its quiet zone leaves the image, the fit diverges, or
+    its correlation stays below min_correlation.
     """
     n = modules.shape[0]
     corners_px = np.asarray(corners_px, dtype=np.float64)
@@ -251,6 +257,7 @@ def fit_marker(
         center_floor_px,
         max_iterations,
         min_correlation,
+        not_paper_ab=not_paper_ab,
     )
     return replace(fit, module_agreement=module_agreement(gray, fit.corners_px, modules))
 
@@ -304,6 +311,7 @@ def fit_template(
     min_correlation: float = 0.8,
     words: FitWords = CODE_WORDS,
     in_view: np.ndarray = UNIT_SQUARE,
+    not_paper_ab: np.ndarray | None = None,
 ) -> MarkerFit:
     """Align a known template to the image by a homography (ECC) and give the symbol's corners.
 
@@ -314,7 +322,10 @@ def fit_template(
     MarkerFit with module_agreement 1 (the caller measures it when it has modules); raises
     MarkerFitError as fit_marker, worded by ``words``. in_view: (N, 2) symbol coordinates that must
     be in the image before and after the fit (the symbol's corners unless given); template pixels
-    outside the image take no part in the fit.
+    outside the image take no part in the fit. not_paper_ab: (K, 4) rectangles [a0, b0, a1, b1] in
+    symbol coordinates whose image pixels take no part either: what the sheet prints there (a
+    neighbouring code inside the quiet zone, the sheet's edge) is not the template's white paper.
+    They are placed by the rough corners, then refitted (NOT_PAPER_PASSES) where each fit put them.
     """
     corners_px = np.asarray(corners_px, dtype=np.float64)
     side_px = _side_px(corners_px)
@@ -323,18 +334,19 @@ def fit_template(
     S_ab_to_tpl = frame.ab_to_template()
     roi_origin, roi = _region(gray, corners_px, quiet_fraction=region_fraction)
     shift = np.array([[1.0, 0.0, -roi_origin[0]], [0.0, 1.0, -roi_origin[1]], [0.0, 0.0, 1.0]])
-    H_roi_tpl = shift @ homography_from_corners(corners_px) @ np.linalg.inv(S_ab_to_tpl)
-    H_roi_tpl /= H_roi_tpl[2, 2]
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-4)
-    try:
-        correlation, warp = cv2.findTransformECC(
-            template, roi, H_roi_tpl.astype(np.float32), cv2.MOTION_HOMOGRAPHY, criteria, None, ECC_SMOOTHING
+    H_roi_ab = shift @ homography_from_corners(corners_px)
+    paper = _paper_mask(roi.shape, H_roi_ab, not_paper_ab)
+    for _ in range(NOT_PAPER_PASSES):
+        correlation, H_roi_tpl = _align(
+            template, roi, H_roi_ab @ np.linalg.inv(S_ab_to_tpl), paper, max_iterations, words
         )
-    except cv2.error as exc:
-        raise MarkerFitError(
-            f"{words.alignment} did not converge ({str(exc).strip().splitlines()[-1]})"
-        ) from None
-    H_roi_tpl = warp.astype(np.float64) / warp[2, 2]
+        H_roi_ab = H_roi_tpl @ S_ab_to_tpl
+        placed = _paper_mask(roi.shape, H_roi_ab, not_paper_ab)  # where this pass put the code
+        if (placed is None and paper is None) or (
+            placed is not None and paper is not None and np.array_equal(placed, paper)
+        ):
+            break
+        paper = placed
     H_img_ab = np.linalg.inv(shift) @ H_roi_tpl @ S_ab_to_tpl
     H_img_ab /= H_img_ab[2, 2]
     refined = apply_homography(H_img_ab, UNIT_SQUARE)
@@ -345,7 +357,7 @@ def fit_template(
         raise MarkerFitError(f"{words.alignment} moved a corner by {moved:.1f} px from {words.rough_source}")
     if not fits_in_image(apply_homography(H_img_ab, in_view), 0.0, gray.shape):
         raise MarkerFitError(words.leaves)
-    noise_cov, sigma = _corner_covariance(roi, H_roi_tpl, template, refined - roi_origin)
+    noise_cov, sigma = _corner_covariance(roi, H_roi_tpl, template, refined - roi_origin, paper)
     J_center = point_jacobian_wrt_corners(refined, np.array([[0.5, 0.5]]))[0]
     return MarkerFit(
         corners_px=refined,
@@ -396,20 +408,73 @@ def image_noise_sigma(gray: np.ndarray, mask: np.ndarray) -> float:
     return float(np.sqrt(np.pi / 2.0) / 6.0 * np.mean(np.abs(response[inner])))
 
 
+def _align(
+    template: np.ndarray,
+    roi: np.ndarray,
+    H_roi_tpl: np.ndarray,
+    paper: np.ndarray | None,
+    max_iterations: int,
+    words: FitWords,
+) -> tuple[float, np.ndarray]:
+    """ECC alignment of the template to the region from H_roi_tpl (3, 3); the region's pixels outside
+    ``paper`` ((H, W) uint8, None: all) take no part. Returns the correlation and the fitted H_roi_tpl."""
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-4)
+    try:
+        correlation, warp = cv2.findTransformECC(
+            template,
+            roi,
+            (H_roi_tpl / H_roi_tpl[2, 2]).astype(np.float32),
+            cv2.MOTION_HOMOGRAPHY,
+            criteria,
+            paper,
+            ECC_SMOOTHING,
+        )
+    except cv2.error as exc:
+        raise MarkerFitError(
+            f"{words.alignment} did not converge ({str(exc).strip().splitlines()[-1]})"
+        ) from None
+    return float(correlation), warp.astype(np.float64) / warp[2, 2]
+
+
+def _paper_mask(
+    shape: tuple[int, ...], H_roi_ab: np.ndarray, not_paper_ab: np.ndarray | None
+) -> np.ndarray | None:
+    """(H, W) uint8 mask of the region's pixels (1) whose symbol coordinates (through H_roi_ab) lie
+    outside every rectangle of not_paper_ab ((K, 4) [a0, b0, a1, b1]); None when that is all of them."""
+    if not_paper_ab is None or len(not_paper_ab) == 0:
+        return None
+    vs, us = np.mgrid[0 : shape[0], 0 : shape[1]]
+    ab = apply_homography(
+        np.linalg.inv(H_roi_ab), np.column_stack([us.ravel(), vs.ravel()]).astype(np.float64)
+    )
+    a, b = ab[:, :1], ab[:, 1:]
+    r = np.asarray(not_paper_ab, dtype=np.float64)
+    inside = (a > r[:, 0]) & (a < r[:, 2]) & (b > r[:, 1]) & (b < r[:, 3])
+    paper = ~inside.any(axis=1)
+    return None if paper.all() else paper.reshape(shape[:2]).astype(np.uint8)
+
+
 def _corner_covariance(
-    roi: np.ndarray, H_roi_tpl: np.ndarray, template: np.ndarray, corners_roi: np.ndarray
+    roi: np.ndarray,
+    H_roi_tpl: np.ndarray,
+    template: np.ndarray,
+    corners_roi: np.ndarray,
+    paper: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Covariance (8, 8) of the fitted corners under white image noise, and that noise's sigma.
 
     Gauss-Newton: sigma^2 (J^T J)^-1, one row of J per pixel under the marker and its quiet
     zone: the gradient of the fitted model image (the template warped into the image and
-    smoothed like the alignment smooths it) times d(pixel position)/d(corners). sigma
+    smoothed like the alignment smooths it) times d(pixel position)/d(corners); paper: (H, W) mask of
+    the pixels the fit used (None: all). sigma
     (grey levels) comes from the model's flat parts (image_noise_sigma). A Monte-Carlo
     test on rendered markers checks this against the scatter of repeated fits.
     """
     h, w = roi.shape
     model = cv2.warpPerspective(template, H_roi_tpl, (w, h), flags=cv2.INTER_LINEAR)
     covered = cv2.warpPerspective(np.ones_like(template), H_roi_tpl, (w, h), flags=cv2.INTER_NEAREST) > 0.5
+    if paper is not None:
+        covered &= paper.astype(bool)
     covered = cv2.erode(covered.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     gain = float(np.ptp(roi[covered])) / 255.0 if np.any(covered) else 1.0
     smooth_model = cv2.GaussianBlur(gain * model, (ECC_SMOOTHING, ECC_SMOOTHING), 0)
