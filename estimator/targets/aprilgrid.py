@@ -23,7 +23,7 @@ the QR codes' homography fit), which also gives their covariance.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -186,8 +186,11 @@ class AprilGridBoard:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> AprilGridBoard:
-        """Validate and build; errors name ``source`` and the field."""
-        name, size = sheet_fields(d, source)
+        """Validate and build; errors name ``source`` and the field. Without 'size_m' the sheet is the
+        grid and the white around it the corner fit needs; without 'name', aprilgrid_<cols>x<rows>."""
+        cols, rows = d.get("tag_cols"), d.get("tag_rows")
+        given = {"name": f"aprilgrid_{cols}x{rows}", "size_m": [1.0, 1.0]} | d  # size_m: placeholder
+        name, size = sheet_fields(given, source)
         board = cls(
             name=name,
             size_m=size,
@@ -207,6 +210,8 @@ class AprilGridBoard:
             )
         width, height = board.grid_size_m
         margin = board.visible_margin_m
+        if "size_m" not in d:
+            board = replace(board, size_m=(width + 2 * margin, height + 2 * margin))
         if width + 2 * margin > board.size_m[0] + 1e-12 or height + 2 * margin > board.size_m[1] + 1e-12:
             raise BoardDefinitionError(
                 f"{source}: the grid ({width * 1e3:.1f} x {height * 1e3:.1f} mm) with {margin * 1e3:.1f} mm "

@@ -25,7 +25,7 @@ from hec.estimator.targets import checker
 from hec.estimator.targets.detection import Detections
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import BoardDefinitionError, positive_field, sheet_header
+from hec.estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_header
 
 # Error per coordinate image noise does not explain at a ChArUco corner, pixels: the RMS on
 # noise-free renders of the default trajectory (charuco_10x5: 17 views, 606 corners).
@@ -91,8 +91,19 @@ class CharucoBoard(checker.GridCorners):
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "board definition") -> CharucoBoard:
-        """Validate and build; errors name ``source`` and the field."""
-        name, size, squares_x, squares_y, square_m = checker.check_grid(d, source, white_squares_around=1)
+        """Validate and build; errors name ``source`` and the field. Without 'size_m' the sheet is the
+        grid and the square of white around it the corner fit needs; without 'name',
+        charuco_<X>x<Y> (squares)."""
+        given = {"name": f"charuco_{d.get('squares_x')}x{d.get('squares_y')}"} | d
+        if "size_m" not in d:
+            square_m = positive_field(d, "square_m", source)
+            width, height = checker.grid_size_m(
+                integer_field(d, "squares_x", source, least=2),
+                integer_field(d, "squares_y", source, least=2),
+                square_m,
+            )
+            given["size_m"] = [width + 2 * square_m, height + 2 * square_m]
+        name, size, squares_x, squares_y, square_m = checker.check_grid(given, source, white_squares_around=1)
         marker_m = positive_field(d, "marker_m", source)
         if marker_m >= square_m:
             raise BoardDefinitionError(

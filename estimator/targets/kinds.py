@@ -2,6 +2,7 @@
 
 A board file (JSON, format hec-board version 1) names its ``kind``; a file without one is a
 board of QR codes (hec.estimator.targets.board), as every board file before the other kinds.
+Kalibr's target YAML and OpenCV's ChArUco parameters are read as well (tool_boards).
 """
 
 from __future__ import annotations
@@ -9,6 +10,8 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+
+import yaml
 
 from hec.estimator.common.files import write_atomic
 from hec.estimator.common.jsonfile import read_json_object
@@ -19,6 +22,7 @@ from hec.estimator.targets.charuco import CharucoBoard, CharucoDetector
 from hec.estimator.targets.chessboard import ChessboardBoard, ChessboardDetector
 from hec.estimator.targets.qr import DetectorSettings, QRDetector
 from hec.estimator.targets.target import BoardDefinitionError, Target, TargetDetector
+from hec.estimator.targets.tool_boards import hec_board_dict
 
 # kind -> (board from its file's dict and source name, detector of such a board)
 KINDS: dict[
@@ -46,10 +50,26 @@ def board_from_dict(d: dict, source: str = "board definition") -> Target:
 
 
 def load_board(path: str | Path) -> Target:
-    """Read a board file of any kind; errors name the file and the field."""
+    """Read a board file of any kind, JSON or YAML, hec's or another tool's (tool_boards); errors
+    name the file and the field."""
     path = Path(path)
-    data = read_json_object(path, BoardDefinitionError, "board definition file not found")
-    return board_from_dict(data, source=str(path))
+    if path.suffix.lower() in (".yaml", ".yml"):
+        data = _read_yaml_object(path)
+    else:
+        data = read_json_object(path, BoardDefinitionError, "board definition file not found")
+    return board_from_dict(hec_board_dict(data, str(path)), source=str(path))
+
+
+def _read_yaml_object(path: Path) -> dict:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise BoardDefinitionError(f"{path}: board definition file not found") from None
+    except yaml.YAMLError as exc:
+        raise BoardDefinitionError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(data, dict):
+        raise BoardDefinitionError(f"{path}: expected a YAML mapping of the board's fields")
+    return data
 
 
 def save_board(board: Target, path: str | Path) -> Path:
