@@ -342,9 +342,7 @@ def fit_template(
         )
         H_roi_ab = H_roi_tpl @ S_ab_to_tpl
         placed = _paper_mask(roi.shape, H_roi_ab, not_paper_ab)  # where this pass put the code
-        if (placed is None and paper is None) or (
-            placed is not None and paper is not None and np.array_equal(placed, paper)
-        ):
+        if (placed is None) == (paper is None) and (placed is None or np.array_equal(placed, paper)):
             break
         paper = placed
     H_img_ab = np.linalg.inv(shift) @ H_roi_tpl @ S_ab_to_tpl
