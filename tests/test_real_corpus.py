@@ -132,6 +132,7 @@ def _check(result: dict, expected: Figures) -> None:
 @pytest.mark.parametrize("real_set", SETS, ids=lambda s: s.name)
 def test_a_real_set_imports_and_calibrates_to_the_recorded_figures(real_set: RealSet, tmp_path: Path) -> None:
     printed = _import(real_set, tmp_path / "ds")
+    assert "depth_noise" not in printed, printed  # images only: no depth model to speak of
     if real_set.poses_off_the_noise:
         assert "the stated convention fits far better than any common mistake" in printed, printed
     else:
@@ -319,3 +320,15 @@ if __name__ == "__main__":
             print(_table(real_set, result))
             summary.append(_summary_row(real_set, result))
     print("\n".join(summary))
+
+
+def test_a_frame_whose_points_are_all_rejected_says_so_on_a_real_set(tmp_path: Path) -> None:
+    """ical's frame 2 shows the board at its edge: OpenCV proposes 4 ChArUco corners and none has
+    the 3 neighbours its fit needs. The frame says that, not that no board was found."""
+    _import(next(s for s in SETS if s.name == "ical_charuco_eye_to_hand"), tmp_path / "ds")
+    code, stdout, stderr = run_hec(["detect", str(tmp_path / "ds"), "--quiet"])
+    assert code == 0, stderr
+    frame_2 = next(line for line in stdout.splitlines() if line.split()[:1] == ["2"])
+    assert "the board was seen, but all 4 of its points found were rejected" in frame_2, frame_2
+    assert "of the corners around it found, 3 needed to place its squares" in frame_2
+    assert "no board marker found" not in frame_2

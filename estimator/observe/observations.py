@@ -20,6 +20,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import Field, dataclass, field, fields, replace
 from pathlib import Path
@@ -121,8 +122,11 @@ def observe_frame(
         return obs
     if not detections.markers:
         blurred = detections.sharpness < BLURRED_SHARPNESS
-        obs.problem = f"no board marker found (sharpness {detections.sharpness:.0f}" + (
-            ": the image looks blurred)" if blurred else ")"
+        sharpness = f"sharpness {detections.sharpness:.0f}" + (": the image looks blurred" if blurred else "")
+        obs.problem = (
+            f"{_all_rejected(detections.rejected)} ({sharpness})"
+            if detections.rejected
+            else f"no board marker found ({sharpness})"
         )
         return obs
     no_depth = depth_problem(frame.depth_m, frame.intrinsics)
@@ -232,6 +236,15 @@ def _depth(
         "points_cov": points_cov,
         "depth_pixels": {"inliers": plane.inliers, "valid": plane.valid, "pixels": plane.pixels},
     }
+
+
+def _all_rejected(rejected: list[Rejection]) -> str:
+    """'the board was seen, but all N of its points found were rejected: ...' with the two most
+    common reasons (each Rejection's reason without its 'marker 3: ' or 'corner 7: ' prefix)."""
+    reasons = Counter(r.reason.split(": ", 1)[-1] for r in rejected)
+    said = "; ".join(f"{n} {reason}" for reason, n in reasons.most_common(2))
+    more = f"; {len(reasons) - 2} other reasons" if len(reasons) > 2 else ""
+    return f"the board was seen, but all {len(rejected)} of its points found were rejected: {said}{more}"
 
 
 def dataset_depth_noise(dataset: Dataset) -> DepthNoiseModel:

@@ -18,7 +18,7 @@ from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
 from hec.estimator.solve.noise_levels import scaled_problem
 from hec.estimator.solve.observability import observability
 from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError, CalibrationProblem
-from hec.estimator.solve.seed_ekf import seed_ekf
+from hec.estimator.solve.seed_ekf import check_depth, seed_ekf
 from hec.estimator.solve.ukf import ukf
 
 Method = Callable[[CalibrationProblem, MethodOptions, list[FrameObservations]], Calibration]
@@ -60,6 +60,8 @@ def solve(
     fit check's warnings."""
     if name not in METHODS:
         raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)} or 'all'")
+    if name == "seed-ekf":
+        check_depth(observations)  # before the learning pass, which would fail on another count
     if not needs_learned_noise(name, options):
         result = METHODS[name](problem, options, observations)
         rejected = result.observations_rejected

@@ -310,6 +310,15 @@ def filter_steps(
         yield FrameStep(frame.frame, state, [i for i, u in zip(ids, used, strict=True) if u], rejected)
 
 
+def check_depth(observations: list[FrameObservations]) -> None:
+    """CalibrationInputError unless some marker has depth (seed-ekf maps the centres from it)."""
+    if not any(m.depth_m is not None for obs in observations for m in obs.markers):
+        raise CalibrationInputError(
+            "seed-ekf needs depth, and no marker of this dataset has any (image only: use ekf, iekf, "
+            "ukf or batch)"
+        )
+
+
 def seed_ekf(
     problem: CalibrationProblem, options: MethodOptions, observations: list[FrameObservations]
 ) -> Calibration:
@@ -317,6 +326,7 @@ def seed_ekf(
     was built from (for the marker centres from depth), matched by frame index and marker ID.
     options.map_model does not apply (the map is always the marker centres)."""
     start = time.perf_counter()
+    check_depth(observations)
     steps = list(filter_steps(problem, options, observations))
     state = steps[-1].state
     if state.known.sum() < 3:

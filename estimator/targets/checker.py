@@ -220,9 +220,13 @@ class CornerFitter:
         block = np.array([[-sq, sq], [sq, sq], [sq, -sq], [-sq, -sq]])
         for corner_id, xy, uv in zip(ids, board_xy, image_uv, strict=True):
             near = np.max(np.abs(board_xy - xy), axis=1) <= 1.5 * sq
-            if np.count_nonzero(near) < 4:
+            if (around := np.count_nonzero(near) - 1) < 3:
                 rejected.append(
-                    Rejection(f"corner {corner_id}: fewer than 4 neighbours found", int(corner_id))
+                    Rejection(
+                        f"corner {corner_id}: {around} of the corners around it found, 3 needed to "
+                        "place its squares",
+                        int(corner_id),
+                    )
                 )
                 continue
             H, _ = cv2.findHomography(board_xy[near], image_uv[near])

@@ -31,6 +31,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from hec.estimator.targets.ecc import ECC_SMOOTHING, align, opencv_reason, paper_mask
+
 UNIT_SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 # Quiet-zone modules kept around the symbol in the template (boards keep at least 4).
 TEMPLATE_QUIET_MODULES = 2
@@ -44,8 +46,6 @@ QUANTISATION_SIGMA = 1.0 / np.sqrt(12.0)
 # (hec.estimator.observe.corner_noise), these as the least.
 DEFAULT_CORNER_FLOOR_PX = 0.013
 DEFAULT_CENTER_FLOOR_PX = 0.0036
-# Gaussian kernel size (pixels) both images are smoothed with before alignment.
-ECC_SMOOTHING = 3
 # Fits (at most) of a code whose quiet zone holds something else than paper, each masking it where the
 # previous one placed the code: the rough corners can be off by half a module (fit_template).
 NOT_PAPER_PASSES = 3
@@ -335,13 +335,16 @@ def fit_template(
     roi_origin, roi = _region(gray, corners_px, quiet_fraction=region_fraction)
     shift = np.array([[1.0, 0.0, -roi_origin[0]], [0.0, 1.0, -roi_origin[1]], [0.0, 0.0, 1.0]])
     H_roi_ab = shift @ homography_from_corners(corners_px)
-    paper = _paper_mask(roi.shape, H_roi_ab, not_paper_ab)
+    paper = paper_mask(roi.shape, H_roi_ab, not_paper_ab)
     for _ in range(NOT_PAPER_PASSES):
-        correlation, H_roi_tpl = _align(
-            template, roi, H_roi_ab @ np.linalg.inv(S_ab_to_tpl), paper, max_iterations, words
-        )
+        try:
+            correlation, H_roi_tpl = align(
+                template, roi, H_roi_ab @ np.linalg.inv(S_ab_to_tpl), paper, max_iterations
+            )
+        except cv2.error as exc:
+            raise MarkerFitError(f"{words.alignment} did not converge ({opencv_reason(exc)})") from None
         H_roi_ab = H_roi_tpl @ S_ab_to_tpl
-        placed = _paper_mask(roi.shape, H_roi_ab, not_paper_ab)  # where this pass put the code
+        placed = paper_mask(roi.shape, H_roi_ab, not_paper_ab)  # where this pass put the code
         if (placed is None) == (paper is None) and (placed is None or np.array_equal(placed, paper)):
             break
         paper = placed
@@ -349,7 +352,7 @@ def fit_template(
     H_img_ab /= H_img_ab[2, 2]
     refined = apply_homography(H_img_ab, UNIT_SQUARE)
     if correlation < min_correlation:
-        raise MarkerFitError(f"{words.alignment} correlation {correlation:.2f} < {min_correlation}")
+        raise MarkerFitError(f"{words.alignment} correlation {correlation:.3f} < {min_correlation}")
     moved = float(np.abs(refined - corners_px).max())
     if moved > max(3.0, 0.15 * side_px):
         raise MarkerFitError(f"{words.alignment} moved a corner by {moved:.1f} px from {words.rough_source}")
@@ -404,52 +407,6 @@ def image_noise_sigma(gray: np.ndarray, mask: np.ndarray) -> float:
     if np.count_nonzero(inner) < 50:
         inner = np.ones_like(mask, dtype=bool)
     return float(np.sqrt(np.pi / 2.0) / 6.0 * np.mean(np.abs(response[inner])))
-
-
-def _align(
-    template: np.ndarray,
-    roi: np.ndarray,
-    H_roi_tpl: np.ndarray,
-    paper: np.ndarray | None,
-    max_iterations: int,
-    words: FitWords,
-) -> tuple[float, np.ndarray]:
-    """ECC alignment of the template to the region from H_roi_tpl (3, 3); the region's pixels outside
-    ``paper`` ((H, W) uint8, None: all) take no part. Returns the correlation and the fitted H_roi_tpl."""
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, max_iterations, 1e-4)
-    try:
-        correlation, warp = cv2.findTransformECC(
-            template,
-            roi,
-            (H_roi_tpl / H_roi_tpl[2, 2]).astype(np.float32),
-            cv2.MOTION_HOMOGRAPHY,
-            criteria,
-            paper,
-            ECC_SMOOTHING,
-        )
-    except cv2.error as exc:
-        raise MarkerFitError(
-            f"{words.alignment} did not converge ({str(exc).strip().splitlines()[-1]})"
-        ) from None
-    return float(correlation), warp.astype(np.float64) / warp[2, 2]
-
-
-def _paper_mask(
-    shape: tuple[int, ...], H_roi_ab: np.ndarray, not_paper_ab: np.ndarray | None
-) -> np.ndarray | None:
-    """(H, W) uint8 mask of the region's pixels (1) whose symbol coordinates (through H_roi_ab) lie
-    outside every rectangle of not_paper_ab ((K, 4) [a0, b0, a1, b1]); None when that is all of them."""
-    if not_paper_ab is None or len(not_paper_ab) == 0:
-        return None
-    vs, us = np.mgrid[0 : shape[0], 0 : shape[1]]
-    ab = apply_homography(
-        np.linalg.inv(H_roi_ab), np.column_stack([us.ravel(), vs.ravel()]).astype(np.float64)
-    )
-    a, b = ab[:, :1], ab[:, 1:]
-    r = np.asarray(not_paper_ab, dtype=np.float64)
-    inside = (a > r[:, 0]) & (a < r[:, 2]) & (b > r[:, 1]) & (b < r[:, 3])
-    paper = ~inside.any(axis=1)
-    return None if paper.all() else paper.reshape(shape[:2]).astype(np.uint8)
 
 
 def _corner_covariance(

@@ -70,7 +70,7 @@ def detect_dataset(
     """Detect every frame with a progress bar (unless quiet) and learn the corner noise floor
     (settings.learn_corner_floor); nothing is written. on_frame: called after each frame. Returns
     the observations and the corner noise (None when not learned)."""
-    if "depth_noise" not in dataset.metadata:
+    if "depth_noise" not in dataset.metadata and any(row["depth"] for row in dataset.rows):
         print("note: dataset.json has no 'depth_noise'; using the D435 defaults", file=sys.stderr)
     with tqdm(total=len(dataset), desc="detect", unit="frame", disable=quiet, file=sys.stderr) as bar:
 
