@@ -384,7 +384,7 @@ def test_too_few_frames_is_a_clear_error(dataset: Path, tmp_path: Path) -> None:
 
 def test_no_depth_reaches_methods_that_read_depth_from_the_observations(dataset: Path) -> None:
     code, _, stderr = run_hec(["calibrate", str(dataset), "--no-depth", "--method", "seed-ekf", "--quiet"])
-    assert code == 2 and "markers with depth" in stderr
+    assert code == 2 and "seed-ekf needs depth and no marker has any (image-only data or --no-depth" in stderr
 
 
 def test_robot_noise_options_override_the_dataset(dataset: Path) -> None:

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 import pytest
 
+from hec.estimator.io.dataset import load_dataset
 from hec.estimator.targets.chessboard import CLASSIC_FLAGS
 from hec.estimator.targets.kinds import detector_for, load_board
 from tests.hec_cli import run_hec
@@ -332,3 +333,46 @@ def test_a_frame_whose_points_are_all_rejected_says_so_on_a_real_set(tmp_path: P
     assert "the board was seen, but all 4 of its points found were rejected" in frame_2, frame_2
     assert "of the corners around it found, 3 needed to place its squares" in frame_2
     assert "no board marker found" not in frame_2
+
+
+@pytest.mark.parametrize("layout", ["image column", "bare lines"])
+def test_urscript_pose_lines_import_as_the_csv_does(tmp_path: Path, layout: str) -> None:
+    """ur_xtion_chessboard's poses written as URScript prints them, p[x, y, z, rx, ry, rz], after each
+    image's name or alone: the dataset holds the same flange poses as from the CSV."""
+    real_set = next(s for s in SETS if s.name == "ur_xtion_chessboard")
+    rows = (REAL / real_set.name / "poses.csv").read_text().splitlines()[1:]
+    lines = []
+    for row in rows:
+        image, *numbers = row.split(",")
+        pose = f"p[{', '.join(numbers)}]"
+        lines.append(f"{image} {pose}" if layout == "image column" else pose)
+    (tmp_path / "ur_poses.txt").write_text("\n".join(lines) + "\n")
+    printed = _import(real_set, tmp_path / "ur", tmp_path / "ur_poses.txt")
+    assert "the robot poses fit the stated convention" in printed, printed
+    _import(real_set, tmp_path / "csv")
+    ur, csv = (load_dataset(tmp_path / name) for name in ("ur", "csv"))
+    assert [r["rgb"] for r in ur.rows] == [r["rgb"] for r in csv.rows]
+    np.testing.assert_allclose(
+        [r["T_base_flange"] for r in ur.rows], [r["T_base_flange"] for r in csv.rows], atol=1e-12
+    )
+
+
+@pytest.mark.parametrize("rotation", ["quat-wxyz", "quat-xyzw"])
+def test_industrial_calibrations_pose_folder_imports_as_the_csv_does(tmp_path: Path, rotation: str) -> None:
+    """ical's own poses/N.yaml, one per image, each listing x y z qx qy qz qw in its own order: read by
+    their names and paired by number, whichever quaternion order is stated, they give the CSV's poses."""
+    real_set = next(s for s in SETS if s.name == "ical_charuco_eye_to_hand")
+    folder = REAL / real_set.name
+    code, stdout, stderr = run_hec(
+        ["import", "folder", str(folder / "images"), "--poses", str(folder / "poses"), "--rotation", rotation,
+         "--pose-direction", "flange-to-base", "--intrinsics", str(folder / "camera.yaml"),
+         "--board", str(folder / "board.json"), "--out", str(tmp_path / "yaml"), "--quiet"]
+    )  # fmt: skip
+    assert code == 0, stderr
+    assert "by the number in each image's name and each pose file's name: 00.jpg - 0.yaml" in stdout, stdout
+    _import(real_set, tmp_path / "csv")
+    from_yaml, from_csv = (load_dataset(tmp_path / name) for name in ("yaml", "csv"))
+    assert [r["rgb"] for r in from_yaml.rows] == [r["rgb"] for r in from_csv.rows]
+    np.testing.assert_allclose(
+        [r["T_base_flange"] for r in from_yaml.rows], [r["T_base_flange"] for r in from_csv.rows], atol=1e-12
+    )

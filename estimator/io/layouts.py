@@ -31,7 +31,8 @@ from hec.estimator.common.files import write_atomic
 from hec.estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
 from hec.estimator.geometry.transforms import make_transform
 from hec.estimator.io.pairing import Pairing, natural_key, pair_images
-from hec.estimator.io.pose_file import PoseConvention, poses_from_values, values_from_poses
+from hec.estimator.io.pose_file import PoseConvention, columns_by_name, poses_from_values, values_from_poses
+from hec.estimator.io.pose_folder import read_pose_folder
 from hec.estimator.io.pose_table import IMAGE_SUFFIXES, NumberTable, read_number_table
 from hec.estimator.observe.pose_pairs import PosePair
 
@@ -101,9 +102,12 @@ def read_folder(
         raise LayoutError(
             "without a pose file, the flange poses come from the joints: give both joints and the arm"
         )
-    table = (
-        read_number_table(joint_file.path, "joints") if pose_file is None else read_number_table(pose_file)
-    )
+    if pose_file is None:
+        table = read_number_table(joint_file.path, "joints")
+    else:
+        pose_file = Path(pose_file)
+        table = read_pose_folder(pose_file) if pose_file.is_dir() else read_number_table(pose_file)
+        table = columns_by_name(table, convention)
     on_disk = [p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
     if not on_disk:
         raise LayoutError(f"{images_dir}: no images ({', '.join(IMAGE_SUFFIXES)})")

@@ -2,7 +2,8 @@
 
 - ``name``: the pose file's ``image`` column names each row's image;
 - ``number``: the number in each image's file name, in natural order (``img_2`` before ``img_10``),
-  paired with the pose rows in order;
+  paired with the pose rows in order, or with the pose file of the same number (a folder of pose
+  files, one per image);
 - ``time``: each image's time (the number in its file name, seconds by default) with the pose row
   of the nearest time (the pose file's ``time`` column), within a tolerance;
 - ``order``: the images in name order with the rows in order; only when asked for.
@@ -35,7 +36,8 @@ class PairingError(ValueError):
 @dataclass(frozen=True)
 class Pairing:
     """images: (N,) the paired images; rows: (N,) each image's row in the pose table (from 0);
-    where: (N,) that row's place in the file ("line 5"); key: how they were paired (PAIR_BY)."""
+    where: (N,) that row's place in the file ("line 5"); key: how they were paired (PAIR_BY, or
+    "file-number" for a folder of pose files)."""
 
     key: str
     images: list[Path]
@@ -47,6 +49,7 @@ class Pairing:
         how = {
             "name": "by the pose file's image column",
             "number": "by the number in each image's name (natural order) with the rows in order",
+            "file-number": "by the number in each image's name and each pose file's name",
             "time": "by the nearest time",
             "order": "in name order with the rows in order (--pair-by order)",
         }[self.key]
@@ -83,6 +86,8 @@ def pair_images(
         return _by_name(images, table)
     if pair_by == "time":
         return _by_time(images, table, time_tolerance_s, image_time_unit)
+    if pair_by == "number" and table.numbers is not None:
+        return _by_file_number(images, table)
     if pair_by == "number":
         unnumbered = [p.name for p in images if not _DIGITS.search(p.stem)]
         if unnumbered:
@@ -103,6 +108,40 @@ def pair_images(
         )
     rows = list(range(len(ordered)))
     return Pairing(pair_by, ordered, rows, [table.where[i] for i in rows])
+
+
+def _by_file_number(images: list[Path], table: NumberTable) -> Pairing:
+    """Each image with the pose file carrying the same number (a folder of pose files)."""
+    by_number: dict[int, Path] = {}
+    for image in images:
+        digits = _DIGITS.findall(image.stem)
+        if len(digits) != 1:
+            raise PairingError(
+                f"{image}: paired with {table.path}'s files by the number in the names, and "
+                f"{image.name!r} carries {'no number' if not digits else 'several numbers'}"
+            )
+        if int(digits[0]) in by_number:
+            raise PairingError(f"{image.name} and {by_number[int(digits[0])].name} carry the same number")
+        by_number[int(digits[0])] = image
+    unposed = sorted(set(by_number) - set(table.numbers))
+    unimaged = [w for n, w in zip(table.numbers, table.where, strict=True) if n not in by_number]
+    if unposed or unimaged:
+        raise PairingError(
+            f"{table.path}: "
+            + "; ".join(
+                part
+                for part in (
+                    f"no pose file for image {', '.join(by_number[n].name for n in unposed[:3])}"
+                    if unposed
+                    else "",
+                    f"no image for pose file {', '.join(unimaged[:3])}" if unimaged else "",
+                )
+                if part
+            )
+            + " (each image needs the pose file of its number)"
+        )
+    images_in_order = [by_number[n] for n in table.numbers]
+    return Pairing("file-number", images_in_order, list(range(len(table.numbers))), table.where)
 
 
 def _by_name(images: list[Path], table: NumberTable) -> Pairing:

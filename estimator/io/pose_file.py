@@ -13,20 +13,22 @@ Angles in ``rad`` or ``deg`` (rotvec and Euler), lengths in ``m`` or ``mm``. Dir
 base -> tool0); ``flange-to-base``: each is its inverse, T_flange_base.
 
 The files (CSV with or without a header, JSON, numpy) are read as hec.estimator.io.pose_table
-says: a column named ``image`` names the pose's image, the others in order are the pose's numbers
-(their names are free). A joint file is read the same way, one row of joint angles per image.
+says: a column named ``image`` names the pose's image, the others are the pose's numbers, in order,
+or by their names when those say which number each is (columns_by_name). A joint file is read the
+same way, one row of joint angles per image.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hec.estimator.geometry.transforms import invert
-from hec.estimator.io.pose_table import PoseFileError, read_number_table
+from hec.estimator.io.pose_table import NumberTable, PoseFileError, read_number_table
 
 EULER_SEQUENCES = tuple(
     s for case in (str.lower, str.upper) for s in map(case, ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx"))
@@ -70,6 +72,56 @@ class PoseConvention:
             "length_unit": self.length_unit,
             "direction": self.direction,
         }
+
+
+# What a pose file's column names say, read without units ("x_m", "rx [rad]") and with ROS's nesting
+# ("position.x", "orientation.w"): each names one number.
+_ALIASES = {
+    **{a: a for a in ("x", "y", "z")},
+    **{f"{p}{a}": a for a in ("x", "y", "z") for p in ("t", "pos_", "position.", "translation.", "t_")},
+    **{
+        f"{p}{a}": f"q{a}"
+        for a in ("x", "y", "z", "w")
+        for p in ("q", "quat_", "q_", "orientation.", "rotation.")
+    },
+    **{f"{p}{a}": f"r{a}" for a in ("x", "y", "z") for p in ("r", "rot_", "rvec_", "r_")},
+}
+_UNIT = re.compile(r"\s*[_ ]?\[?(m|mm|rad|deg)\]?$")
+_NAMED_ORDER = {
+    "quat-wxyz": ("x", "y", "z", "qw", "qx", "qy", "qz"),
+    "quat-xyzw": ("x", "y", "z", "qx", "qy", "qz", "qw"),
+    "rotvec": ("x", "y", "z", "rx", "ry", "rz"),
+}
+
+
+def columns_by_name(table: NumberTable, convention: PoseConvention) -> NumberTable:
+    """The table with its numbers in the convention's order when the columns' names say which is which
+    (x y z with qx qy qz qw, or with rx ry rz for rotvec: _ALIASES), in whatever order they came; a
+    table whose names are not all known keeps its order. PoseFileError when the names say a
+    quaternion and the convention is not one."""
+    if table.columns is None:
+        return table
+    named = [_ALIASES.get(_UNIT.sub("", c.strip().lower()).split("/")[-1]) for c in table.columns]
+    if None in named or len(set(named)) != len(named):
+        return table
+    if set(named) == set(_NAMED_ORDER["quat-xyzw"]) and convention.rotation not in ("quat-wxyz", "quat-xyzw"):
+        raise PoseFileError(
+            f"{table.path}: the numbers are named as a position and a quaternion "
+            f"({', '.join(table.columns)}) but the rotation is read as {convention.rotation}: pass "
+            "--rotation quat-xyzw (the numbers are then read by their names, in any order)"
+        )
+    wanted = _NAMED_ORDER.get(convention.rotation)
+    if wanted is None or set(named) != set(wanted):
+        return table
+    order = [named.index(name) for name in wanted]
+    if order == list(range(len(order))):
+        return table
+    return replace(
+        table,
+        values=table.values[:, order],
+        columns=[table.columns[i] for i in order],
+        layout=f"{table.layout}, numbers read by their names ({', '.join(table.columns[i] for i in order)})",
+    )
 
 
 def poses_from_values(values: np.ndarray, convention: PoseConvention, where: str = "poses") -> np.ndarray:

@@ -10,7 +10,9 @@ A CSV file may have a header row or not; hec decides from the first row and neve
 of numbers only is data (no header), a row of names only is a header, anything else is refused.
 Columns named ``image`` (or ``frame``) name each row's image, columns named ``time``, ``time_s``,
 ``timestamp`` or ``stamp`` give its time in seconds; without a header, a column whose every cell is
-an image file name is the image column. The other columns, in order, are the row's numbers.
+an image file name is the image column. The other columns, in order, are the row's numbers. Poses
+as URScript prints them, ``p[x, y, z, rx, ry, rz]`` (after an image name or alone, a header above
+or not), are read as those six numbers.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +30,7 @@ NAME_COLUMNS = ("image", "frame")
 TIME_COLUMNS = ("time", "time_s", "timestamp", "stamp")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 _SEPARATORS = {",": "comma", ";": "semicolon", "\t": "tab", " ": "spaces"}
+_UR_POSE = re.compile(r"\bp\[([^\]]*)\]")  # URScript's pose literal
 
 
 class PoseFileError(ValueError):
@@ -40,7 +44,8 @@ class NumberTable:
     column; times_s: (N,) seconds or None without a time column; where: (N,) where each row is in
     the file, for messages ("line 5" of a CSV file, "entry 4" of JSON or numpy, from 0); layout: how
     it was read, in words; columns: (k,) the header's names of the numbers' columns, or None without
-    a header; notes: what a person should know (rows that repeat a pose)."""
+    a header; notes: what a person should know (rows that repeat a pose); numbers: (N,) the number in
+    each row's own file name (a folder of pose files, one per image: hec.estimator.io.pose_folder)."""
 
     path: Path
     values: np.ndarray
@@ -50,6 +55,7 @@ class NumberTable:
     layout: str
     columns: list[str] | None = None
     notes: list[str] = field(default_factory=list)
+    numbers: list[int] | None = None
 
 
 def read_number_table(path: str | Path, field: str = "pose") -> NumberTable:
@@ -66,11 +72,12 @@ def read_number_table(path: str | Path, field: str = "pose") -> NumberTable:
         table = _read_numpy(path, field)
     else:
         table = _read_csv(path)
-    _check(table, what)
+    check_table(table, what)
     return table
 
 
-def _check(table: NumberTable, what: str) -> None:
+def check_table(table: NumberTable, what: str) -> None:
+    """PoseFileError for an empty table, a NaN or an image listed twice; notes for repeated rows."""
     if len(table.values) == 0:
         raise PoseFileError(f"{table.path}: no {what} rows")
     bad = ~np.isfinite(table.values).all(axis=1)
@@ -113,6 +120,15 @@ def _read_csv(path: Path) -> NumberTable:
     numbered = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not numbered:
         raise PoseFileError(f"{path}: the file is empty")
+    ur_notation = all(_UR_POSE.search(line) for _, line in numbered[1:] or numbered)
+    raw_second = numbered[1][1] if len(numbered) > 1 else ""
+    if ur_notation:  # p[x, y, z, rx, ry, rz] as URScript prints a pose: its numbers are the row's
+        outside = _UR_POSE.sub("", numbered[0][1])
+        sep = _separator(outside) if outside.strip() else ","
+        numbered = [
+            (n, _UR_POSE.sub(lambda m: sep.join(m.group(1).replace(",", " ").split()), line))
+            for n, line in numbered
+        ]
     sep = _separator(numbered[0][1])
     if sep == " ":
         rows = [(n, line.split()) for n, line in numbered]
@@ -133,6 +149,8 @@ def _read_csv(path: Path) -> NumberTable:
             f"{path}: line {first_line} mixes names and numbers ({', '.join(first[:4])}...): give either a "
             "header row naming every column (image, x, y, ...) or no header at all (numbers only)"
         )
+    if ur_notation and header is not None and _UR_POSE.search(raw_second):
+        header = _ur_header(header, raw_second, sep)
     width = len(header) if header is not None else len(first)
     if header is not None:
         lowered = [h.lower() for h in header]
@@ -164,7 +182,8 @@ def _read_csv(path: Path) -> NumberTable:
         values.append(numbers)
         where.append(f"line {line}")
     layout = (
-        f"CSV, {_SEPARATORS[sep]}-separated, "
+        ("URScript poses p[...], " if ur_notation else "")
+        + f"CSV, {_SEPARATORS[sep]}-separated, "
         + ("a header row" if header is not None else "no header row")
         + ("" if name_column is None else f", image names in column {name_column + 1}")
         + ("" if time_column is None else f", times in column {time_column + 1}")
@@ -178,6 +197,17 @@ def _read_csv(path: Path) -> NumberTable:
         layout,
         None if header is None else [h for i, h in enumerate(header) if i not in (name_column, time_column)],
     )
+
+
+def _ur_header(header: list[str], raw_line: str, sep: str) -> list[str]:
+    """The header with the column that holds a data line's p[...] pose split into its six numbers'
+    columns ("pose" -> "pose x", ..., "pose rz")."""
+    prefix = raw_line[: _UR_POSE.search(raw_line).start()]
+    column = len(prefix.split()) if sep == " " else prefix.count(sep)
+    if column >= len(header):
+        return header
+    parts = [f"{header[column]} {axis}" for axis in ("x", "y", "z", "rx", "ry", "rz")]
+    return header[:column] + parts + header[column + 1 :]
 
 
 def _number(cell: str, decimal_comma: bool) -> float | None:

@@ -314,7 +314,7 @@ def check_depth(observations: list[FrameObservations]) -> None:
     """CalibrationInputError unless some marker has depth (seed-ekf maps the centres from it)."""
     if not any(m.depth_m is not None for obs in observations for m in obs.markers):
         raise CalibrationInputError(
-            "seed-ekf needs depth, and no marker of this dataset has any (image only: use ekf, iekf, "
+            "seed-ekf needs depth and no marker has any (image-only data or --no-depth; use ekf, iekf, "
             "ukf or batch)"
         )
 

@@ -55,7 +55,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--poses",
         type=Path,
-        help="folder layout: the pose file (CSV with or without a header, JSON, .npy/.npz)",
+        help="folder layout: the pose file (CSV with or without a header, JSON, .npy/.npz), or a folder of "
+        "pose files, one per image, named by its number",
     )
     p.add_argument(
         "--pair-by",
