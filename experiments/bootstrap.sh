@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up everything the project needs, idempotently, from any working directory:
 #   1. the Debian packages behind headless MuJoCo (EGL with Mesa, OSMesa as fallback),
-#      pyzbar (libzbar0) and pyrealsense2 (libusb), plus python3-venv if needed;
+#      pyzbar (libzbar0) and pyrealsense2 (libusb), chromium (the tests open the HTML reports in
+#      it, headless), plus python3-venv if needed;
 #   2. the virtualenv .venv at the repository root with `pip install -e ".[dev]"`.
 # The pip step is skipped when .venv records the sha256 of pyproject.toml it was
 # installed from, so a re-run takes seconds.
@@ -11,7 +12,7 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$REPO/.venv"
 STAMP="$VENV/.hec-pyproject.sha256"
 PYTHON="${PYTHON:-python3}"
-DEB_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libzbar0 libusb-1.0-0)
+DEB_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libzbar0 libusb-1.0-0 chromium)
 
 say() { echo "hec setup: $*" >&2; }
 

@@ -289,9 +289,11 @@ def calibrate_dataset(
     json_out: Path | None = None,
     quiet: bool = False,
     observations: list[FrameObservations] | None = None,
+    report_dir: Path | None = None,
 ) -> list[Result]:
     """`hec calibrate`: observations (given, cached or detected now), the problem, the methods, the
-    printed report and the JSON. Raises CalibrationInputError and the other input errors."""
+    printed report, the JSON and, with report_dir, the HTML report (hec.calibration.html_report).
+    Raises CalibrationInputError and the other input errors."""
     if json_out is not None:
         check_json_path(json_out)
     dataset = load_dataset(dataset_path)
@@ -337,7 +339,29 @@ def calibrate_dataset(
         else:
             data |= calibration_to_dict(results[0], T_true)
         print(f"wrote {write_json(json_out, data)}")
+    if report_dir is not None:
+        _write_report(report_dir, dataset, problem, results, settings, T_true)
     return results
+
+
+def _write_report(
+    report_dir: Path,
+    dataset: Dataset,
+    problem: CalibrationProblem,
+    results: list[Result],
+    settings: CalibrateSettings,
+    T_true: np.ndarray | None,
+) -> None:
+    """The HTML report of the default method's calibration (of the first that calibrated if it did not)."""
+    from hec.calibration.html_report import write_calibration_report
+    from hec.estimator.solve.calibration import Calibration
+
+    calibrated = [r for r in results if isinstance(r, Calibration)]
+    if not calibrated:
+        return
+    cal = next((r for r in calibrated if r.method == DEFAULT_METHOD), calibrated[0])
+    comparison = format_comparison(results, T_true) if settings.method == ALL_METHODS else None
+    print(f"wrote {write_calibration_report(report_dir, dataset, problem, cal, T_true, comparison)}")
 
 
 def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
@@ -411,7 +435,7 @@ def run(args: argparse.Namespace) -> int:
         loo_all=args.loo_all,
         verbose=args.verbose,
     )
-    results = calibrate_dataset(args.dataset, settings, args.json, args.quiet)
+    results = calibrate_dataset(args.dataset, settings, args.json, args.quiet, report_dir=args.report)
     if not any(isinstance(r, Calibration) for r in results):
         print("hec: error: no method could calibrate from these observations", file=sys.stderr)
         return 2

@@ -465,6 +465,10 @@ def _calibrate(args: argparse.Namespace) -> int:
 
     print()
     results = calibrate_dataset(
-        args.out, CalibrateSettings(method=args.method), args.out / CALIBRATION_FILE, quiet=True
+        args.out,
+        CalibrateSettings(method=args.method),
+        args.out / CALIBRATION_FILE,
+        quiet=True,
+        report_dir=args.out,
     )
     return 0 if isinstance(results[0], Calibration) else 2

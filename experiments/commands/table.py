@@ -76,6 +76,12 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", type=Path, metavar="OUT", help="also write the results to this JSON file")
     p.add_argument(
+        "--report",
+        type=Path,
+        metavar="DIR",
+        help="also write DIR/report.html: the verdict, residuals, poses and every frame to look at",
+    )
+    p.add_argument(
         "--map",
         default="board",
         choices=["board", "landmarks"],
