@@ -18,6 +18,8 @@ import numpy as np
 from hec.estimator.geometry.transforms import make_transform
 
 SMALL_ANGLE = 1e-8
+# so3_log takes scipy's route within this of a half turn (radians).
+NEAR_PI = 1e-3
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -74,10 +76,20 @@ def pose_plus_jacobian_rows(delta: np.ndarray) -> np.ndarray:
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> rotation vector (3,), radians, angle in [0, pi]."""
-    from scipy.spatial.transform import Rotation  # loaded on first use: 0.2 s at start-up otherwise
+    """(3, 3) rotation -> rotation vector (3,), radians, angle in [0, pi]. Closed form (the angle from
+    atan2 of the skew part and the trace, accurate down to zero); within NEAR_PI of a half turn, where
+    the skew part vanishes, scipy's quaternion route."""
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    sine2 = float(np.linalg.norm(v))  # 2 sin(angle)
+    cosine2 = float(R[0, 0] + R[1, 1] + R[2, 2] - 1.0)  # 2 cos(angle)
+    angle = np.arctan2(sine2, cosine2)
+    if angle > np.pi - NEAR_PI:
+        from scipy.spatial.transform import Rotation  # loaded on first use: 0.2 s at start-up otherwise
 
-    return Rotation.from_matrix(R).as_rotvec()
+        return Rotation.from_matrix(R).as_rotvec()
+    if angle < SMALL_ANGLE:
+        return 0.5 * v * (1.0 + angle * angle / 6.0)
+    return angle / sine2 * v
 
 
 def so3_right_jacobian(w: np.ndarray) -> np.ndarray:

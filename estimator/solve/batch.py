@@ -124,9 +124,13 @@ class BatchObjective:
         """(N, 6) the frames' flange pose perturbations, None without robot noise."""
         return params[self.n :].reshape(-1, 6) if self.with_robot else None
 
-    def _predict(self, params: np.ndarray, jacobians: bool) -> tuple[HandEyeState, StackedPrediction]:
+    def _predict(
+        self, params: np.ndarray, jacobians: bool, camera: bool = False
+    ) -> tuple[HandEyeState, StackedPrediction]:
         state = self.start.plus(params[: self.n])
-        return state, predict_frames(self.problem, self.stacked, state, self._deltas(params), jacobians)
+        return state, predict_frames(
+            self.problem, self.stacked, state, self._deltas(params), jacobians, camera
+        )
 
     def residuals(self, params: np.ndarray) -> np.ndarray:
         state, pred = self._predict(params, jacobians=False)
@@ -149,7 +153,15 @@ class BatchObjective:
 
     def linearise(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """residuals(params) and jacobian(params) from one prediction (the same numbers)."""
-        state, pred = self._predict(params, jacobians=True)
+        r, J, _, _ = self.linearise_with_prediction(params)
+        return r, J
+
+    def linearise_with_prediction(
+        self, params: np.ndarray, camera: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, HandEyeState, StackedPrediction]:
+        """linearise's residuals and Jacobian, and the state and prediction they come from (with
+        camera, what measurement_model.camera_jacobian_rows needs)."""
+        state, pred = self._predict(params, jacobians=True, camera=camera)
         r = self._residuals(params, state, pred)
         to_params = state.plus_jacobian(params[: self.n])
         J = np.zeros((self.row_count, self.size))
@@ -165,7 +177,7 @@ class BatchObjective:
             J[rows[:, None], columns] = np.einsum("rk,rkl->rl", pred.J_flange, steps[frame])
             delta_columns = self.n + 6 * np.arange(len(self.robot_rows))[:, None, None] + np.arange(6)
             J[self.robot_rows[:, :, None], delta_columns] = self.robot_sqrt_info
-        return r, J
+        return r, J, state, pred
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:
         """Whitened measurement residual of each frame at params."""

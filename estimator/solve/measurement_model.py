@@ -148,7 +148,10 @@ def predict_frame(
         )
     J_camera = J_shift = None
     if camera_jacobian:
-        J_camera, J_shift = _camera_jacobian(problem, state, frame, pred)
+        corners_board = np.concatenate([m.corners_board for m in frame.markers])
+        J_camera, J_shift = camera_jacobian_rows(
+            problem, state, corners_board, stacked.whitening, stacked.rows, pred
+        )
     return FramePrediction(
         residual,
         whitened_point_rows(stacked.whitening, stacked.rows, pred.J_state, problem.points_per_marker),
@@ -167,7 +170,7 @@ class PointPrediction:
     predicted (3 C K,) per marker its 2C point pixels then its C depths; pixels (P, 2); depth (P,);
     p_cam (P, 3).
     With jacobians, d(u, v, depth)/d(the state's perturbation) J_state (P, 3, n) and /d(the flange
-    pose's) J_flange (P, 3, 6), and what _camera_jacobian needs: the undistorted and distorted
+    pose's) J_flange (P, 3, 6), and what camera_jacobian_rows needs: the undistorted and distorted
     normalised coordinates xy, xy_d (P, 2), the corner bias's derivatives fit (with distortion or
     camera), d(u, v, depth)/d(p_cam) d_meas_d_cam (P, 3, 3) and d(p_cam)/d(p_base)
     d_cam_d_base ((3, 3) or (P, 3, 3))."""
@@ -217,7 +220,7 @@ def predict_points(
     """Predict marker corners seen from flange poses (R_F (3, 3) or (P, 3, 3), t_F (3,) or
     (P, 3), base frame): points are the corners in the board frame (P, 3) (board mode) or the
     landmark rows (P,) (landmark mode), C per marker; camera: with the corner bias's derivatives
-    for _camera_jacobian (QR boards)."""
+    for camera_jacobian_rows (QR boards)."""
     R_X, t_X = state.T_flange_cam[:3, :3], state.T_flange_cam[:3, 3]
     corners_board = rows = None
     if state.T_base_board is not None:
@@ -300,16 +303,19 @@ def _through_camera_points(
     return J
 
 
-def _camera_jacobian(
+def camera_jacobian_rows(
     problem: CalibrationProblem,
     state: HandEyeState,
-    frame: FrameMeasurements,
+    corners_board: np.ndarray,
+    whitening: np.ndarray,
+    selected: np.ndarray,
     pred: PointPrediction,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(m, 14) whitened d(prediction)/d(fx, fy, cx, cy, k1, k2, board scale x, board scale y,
     depth log scale, depth offset, board bend x, board bend y, depth tilt x, depth tilt y), and
-    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y), from the frame's
-    point prediction (predict_points with camera)."""
+    (m, 2) d(prediction)/d(a shift of the point's marker along the board's x and y), from the point
+    prediction (predict_points with camera) of markers whose points are corners_board (P, 3), their
+    measured entries selected and whitened by whitening (one frame's, or a stack's: whitened_point_rows)."""
     k = problem.intrinsics
     xy, xy_d, fit, depth, p_cam = pred.xy, pred.xy_d, pred.fit, pred.depth, pred.p_cam
     # the detector's corner bias moves with the corners only under distortion
@@ -325,7 +331,6 @@ def _camera_jacobian(
     if fit is not None:
         J[:, :2, [0, 1, 4, 5]] += fit.d_camera.reshape(P, 2, 4)
     if state.T_base_board is not None:  # landmarks have no board to scale
-        corners_board = np.concatenate([m.corners_board for m in frame.markers])
         R_B = state.T_base_board[:3, :3]
         shapes = _bend_shapes(problem, corners_board)
         normal = R_B[:, 2]
@@ -345,7 +350,7 @@ def _camera_jacobian(
     J[:, 2, 8] = depth
     J[:, 2, 9] = np.exp(problem.depth_bias[0])
     J[:, 2, 12:14] = np.exp(problem.depth_bias[0]) * p_cam[:, :2]
-    whitened = whitened_point_rows(frame.stacked.whitening, frame.stacked.rows, J, problem.points_per_marker)
+    whitened = whitened_point_rows(whitening, selected, J, problem.points_per_marker)
     return whitened[:, :14], whitened[:, 14:]
 
 

@@ -33,13 +33,14 @@ tilt was free.
 
 theta covers the names given (group_names: NUISANCE_GROUPS' order; the noise learning frees or
 fixes a group's names together). The batch objective gains theta as parameters
-(their Jacobian analytic, from predict_frame, and the kinematics' by finite differences once) and
+(their Jacobian analytic, from the measurement model's, and the kinematics' by finite differences once) and
 its prior rows; the noise learning runs on it when the declared model fits badly, and every
 method then solves the adjusted problem.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -50,8 +51,8 @@ from hec.estimator.geometry.kinematics import URKinematics, forward
 from hec.estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
 from hec.estimator.solve.batch import BatchObjective, OutsideModel
 from hec.estimator.solve.block_arrow import BlockLayout
-from hec.estimator.solve.measurement_model import predict_frame
-from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.measurement_model import camera_jacobian_rows
+from hec.estimator.solve.problem import CalibrationProblem
 
 # The camera, board and depth corrections, in the order of predict_frame's J_camera columns.
 CAMERA_NUISANCE = (
@@ -251,13 +252,21 @@ def adjusted_problem(
 
 def kinematic_jacobian(kinematics: URKinematics, joints: np.ndarray) -> np.ndarray:
     """(6, 24) d(the flange pose's correction, hec.estimator.geometry.lie perturbation) / d(the
-    KINEMATIC_NUISANCE values) at the nominal model, by central differences."""
+    KINEMATIC_NUISANCE values) at the nominal model, by central differences. Read-only: one noise
+    learning asks for the same frames' many times, so each is computed once."""
+    return _kinematic_jacobian(kinematics, tuple(np.asarray(joints, dtype=float)))
+
+
+@functools.lru_cache(maxsize=1024)
+def _kinematic_jacobian(kinematics: URKinematics, joints: tuple[float, ...]) -> np.ndarray:
+    joints = np.array(joints)
     T_nominal = forward(kinematics, joints)
     G = np.empty((6, len(KINEMATIC_NUISANCE)))
     for i, name in enumerate(KINEMATIC_NUISANCE):
         ahead = forward(adjusted_kinematics(kinematics, {name: _KINEMATIC_STEP}), joints)
         behind = forward(adjusted_kinematics(kinematics, {name: -_KINEMATIC_STEP}), joints)
         G[:, i] = (pose_minus(ahead, T_nominal) - pose_minus(behind, T_nominal)) / (2 * _KINEMATIC_STEP)
+    G.flags.writeable = False
     return G
 
 
@@ -350,6 +359,10 @@ class SelfCalibrationObjective:
             if kinematic
             else None
         )
+        # the marker of every whitened row, every frame's markers in order (_shift_block)
+        self.marker_of_row = np.concatenate(
+            [np.full(len(m.whitening), m.marker_id) for f in base.frames for m in f.markers]
+        )
         self.inner = make(base)
         self._key, self._inner_at = None, self.inner
         self.n = self.inner.n
@@ -383,29 +396,36 @@ class SelfCalibrationObjective:
 
     def linearise(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """residuals(params) and the Jacobian: the batch's (both from one batch linearisation),
-        theta's columns (analytic: predict_frame's camera Jacobian; the kinematics' through the
-        flange pose) and theta's prior rows."""
+        theta's columns (analytic: every frame's camera Jacobian in one call, camera_jacobian_rows;
+        the kinematics' through the flange pose) and theta's prior rows."""
         x, theta = params[: self.inner.size], params[self.inner.size :]
         objective = self._objective(theta)
-        r_inner, J_inner = objective.linearise(x)
-        state = objective.start.plus(x[: objective.n])
-        blocks = [np.zeros((objective.n + (6 if objective.prior is not None else 0), len(theta)))]
         camera = bool(self.camera_columns) or self.shift_columns is not None
+        r_inner, J_inner, state, pred = objective.linearise_with_prediction(x, camera)
         deltas = objective._deltas(x)
-        for i, frame in enumerate(objective.problem.frames):
-            delta = None if deltas is None else deltas[i]
-            pred = predict_frame(objective.problem, state, frame, delta, camera_jacobian=camera)
-            columns = [pred.J_camera[:, self.camera_columns]] if self.camera_columns else []
-            if self.kinematic is not None:
-                columns.append(
-                    pred.J_flange @ self._flange_step(i, frame.T_base_flange, delta) @ self.kinematic[i]
-                )
-            if self.shift_columns is not None:
-                columns.append(self._shift_block(frame, pred.J_marker_shift))
-            blocks.append(np.hstack(columns))
-            if objective.with_robot:
-                blocks.append(np.zeros((6, len(theta))))
-        top = np.hstack([J_inner, np.concatenate(blocks)])
+        stacked = objective.stacked
+        columns = []
+        if camera:
+            board = stacked.points if state.T_base_board is not None else None
+            J_camera, J_shift = camera_jacobian_rows(
+                objective.problem, state, board, stacked.whitening, stacked.selected, pred.points
+            )
+            if self.camera_columns:
+                columns.append(J_camera[:, self.camera_columns])
+        if self.kinematic is not None:
+            steps = np.array(
+                [
+                    self._flange_step(i, f.T_base_flange, None if deltas is None else deltas[i])
+                    @ self.kinematic[i]
+                    for i, f in enumerate(objective.problem.frames)
+                ]
+            )
+            columns.append(np.einsum("rj,rjk->rk", pred.J_flange, steps[stacked.frame_of_row]))
+        if self.shift_columns is not None:
+            columns.append(self._shift_block(J_shift))
+        theta_block = np.zeros((len(r_inner), len(theta)))
+        theta_block[objective.measurement_rows] = np.hstack(columns)
+        top = np.hstack([J_inner, theta_block])
         bottom = np.hstack([np.zeros((len(theta), self.inner.size)), np.diag(self.sqrt_info)])
         return np.concatenate([r_inner, self.sqrt_info * theta]), np.vstack([top, bottom])
 
@@ -418,14 +438,13 @@ class SelfCalibrationObjective:
         step[3:, 3:] = rotation if delta is None else so3_exp(delta[3:]).T @ rotation
         return step
 
-    def _shift_block(self, frame: FrameMeasurements, J_shift: np.ndarray) -> np.ndarray:
-        """(m, 2 per marker) the marker-shift columns: each marker's rows in its own two columns."""
+    def _shift_block(self, J_shift: np.ndarray) -> np.ndarray:
+        """(R, 2 per marker) the marker-shift columns of every frame's rows (J_shift (R, 2)): each
+        marker's rows in its own two columns."""
         block = np.zeros((len(J_shift), 2 * len(self.shift_columns)))
-        row = 0
-        for m in frame.markers:
-            rows = slice(row, row + len(m.whitening))
-            block[rows, list(self.shift_columns[m.marker_id])] = J_shift[rows]
-            row += len(m.whitening)
+        columns = np.array([self.shift_columns[i] for i in self.marker_of_row])
+        rows = np.arange(len(J_shift))[:, None]
+        block[rows, columns] = J_shift
         return block
 
     def frame_residuals(self, params: np.ndarray) -> list[np.ndarray]:

@@ -12,6 +12,7 @@ from scipy import sparse
 from hec.estimator.geometry.lie import so3_exp_rows
 from hec.estimator.solve.measurement_model import (
     HandEyeState,
+    PointPrediction,
     marker_points,
     predict_points,
     whitened_point_rows,
@@ -77,11 +78,12 @@ def stacked_frames(problem: CalibrationProblem, board: bool) -> StackedFrames:
 class StackedPrediction:
     """Whitened residual W (measured - predicted) (R,) over all frames, and with jacobians the
     whitened prediction's derivatives with respect to the state perturbation J_state (R, n) and
-    each row's own frame's flange pose perturbation J_flange (R, 6)."""
+    each row's own frame's flange pose perturbation J_flange (R, 6), and the points' prediction."""
 
     residual: np.ndarray
     J_state: np.ndarray | None = None
     J_flange: np.ndarray | None = None
+    points: PointPrediction | None = None
 
 
 def predict_frames(
@@ -90,14 +92,16 @@ def predict_frames(
     state: HandEyeState,
     deltas: np.ndarray | None,
     jacobians: bool,
+    camera: bool = False,
 ) -> StackedPrediction:
     """predict_frame over every frame at once; deltas (N, 6): each frame's flange pose perturbation
-    (None: the poses as reported)."""
+    (None: the poses as reported). With jacobians, points holds the per-point prediction (with what
+    measurement_model.camera_jacobian_rows needs when camera)."""
     R_F, t_F = stacked.T_base_flange[:, :3, :3], stacked.T_base_flange[:, :3, 3]
     if deltas is not None:
         R_F, t_F = R_F @ so3_exp_rows(deltas[:, 3:]), t_F + deltas[:, :3]
     frame = stacked.frame_of_point
-    pred = predict_points(problem, state, stacked.points, R_F[frame], t_F[frame], jacobians)
+    pred = predict_points(problem, state, stacked.points, R_F[frame], t_F[frame], jacobians, camera)
     residual = stacked.whitening @ (stacked.measured - pred.predicted[stacked.selected])
     if not jacobians:
         return StackedPrediction(residual)
@@ -105,4 +109,5 @@ def predict_frames(
         residual,
         whitened_point_rows(stacked.whitening, stacked.selected, pred.J_state, problem.points_per_marker),
         whitened_point_rows(stacked.whitening, stacked.selected, pred.J_flange, problem.points_per_marker),
+        pred,
     )
