@@ -21,6 +21,7 @@ from hec.estimator.io.dataset import DatasetWriter
 from hec.estimator.io.memory import dataset_in_memory
 from hec.estimator.observe.frames import Dataset, Frame, GroundTruth
 from hec.sim.cell import MIN_MODULE_PX, SimCell
+from hec.sim.compiled import first_compile_note
 from hec.sim.noise import depth_noise_model, robot_pose_noise_model, waypoint_rng
 from hec.sim.preview import write_preview
 from hec.sim.scenario import Scenario
@@ -134,6 +135,8 @@ def simulate(
     truth = cell.ground_truth()
     skipped: list[tuple[int, str]] = []
     frame_rgb: list[np.ndarray] = []
+    if progress and (note := first_compile_note()) is not None:
+        print(note, file=sys.stderr)
     try:
         with DatasetWriter(
             out_dir,

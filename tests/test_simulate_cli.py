@@ -398,3 +398,21 @@ def test_board_png_and_pdf_at_true_scale(tmp_path: Path) -> None:
     # Page size in points (1/72 inch): the sheet at true scale, to within one 300 dpi pixel.
     page_m = [float(v) / 72 * 0.0254 for v in box.groups()]
     np.testing.assert_allclose(page_m, [width_m, height_m], rtol=0, atol=0.0254 / 300)
+
+
+def test_the_first_compile_is_announced_until_numba_has_cached_every_pass(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A new install compiles the image-error passes on the first realistic view (15-20 s): simulate
+    says so until numba's cache holds every compiled module."""
+    from hec.sim import compiled
+
+    cached = [
+        m
+        for m in compiled.COMPILED_MODULES
+        if any((Path(compiled.__file__).parent / "__pycache__").glob(f"{m}.*.nbi"))
+    ]
+    monkeypatch.setattr(compiled, "COMPILED_MODULES", (*cached, "a_module_never_compiled"))
+    assert "compiling the simulator's image and depth error passes" in compiled.first_compile_note()
+    monkeypatch.setattr(compiled, "COMPILED_MODULES", tuple(cached))
+    assert compiled.first_compile_note() is None

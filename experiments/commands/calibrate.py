@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -163,7 +164,7 @@ def run_methods(
     order_warning = joint_order_warning(problem)
     if loo and len(names) > 1 and options.learn_noise:
         try:
-            learned = learn_noise(problem, options)
+            learned = _learn_noise(problem, options, quiet)
         except CalibrationInputError:
             pass  # each method that needs it fails with the reason
     bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
@@ -171,7 +172,7 @@ def run_methods(
         bar.set_postfix_str(name)
         try:
             if learned is None and needs_learned_noise(name, options):
-                learned = learn_noise(problem, options)
+                learned = _learn_noise(problem, options, quiet)
             cal = run_method(name, problem, options, observations, learned)
         except CalibrationInputError as exc:
             if len(names) == 1:
@@ -187,6 +188,24 @@ def run_methods(
         add_pick_error(cal, problem)
         results.append(cal)
     return results
+
+
+def _learn_noise(problem: CalibrationProblem, options: MethodOptions, quiet: bool) -> LearnedNoise:
+    """learn_noise, saying what it does and how long it took unless quiet (it takes seconds)."""
+    if not quiet:
+        print(
+            "calibrate: learning the noise from the data (and what the camera, board and arm need)",
+            file=sys.stderr,
+        )
+    start = time.perf_counter()
+    learned = learn_noise(problem, options)
+    if not quiet:
+        groups = ", ".join(g.replace("_", " ") for g in learned.groups_kept) or "nothing"
+        print(
+            f"calibrate: learned in {time.perf_counter() - start:.1f} s; self-calibrated: {groups}",
+            file=sys.stderr,
+        )
+    return learned
 
 
 def _loo_models(
