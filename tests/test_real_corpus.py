@@ -304,25 +304,6 @@ def _summary_row(real_set: RealSet, result: dict) -> str:
     return f"| {real_set.name} | {figures} | {verdict} |"
 
 
-if __name__ == "__main__":
-    # python -m tests.test_real_corpus: import every set and print `hec calibrate --method all` as the
-    # tables of tests/data/real/README.md, then the summary table of the top-level README.
-    import tempfile
-
-    summary = [
-        "| set | ekf LOO mm | best OpenCV LOO mm | ekf declared | that OpenCV declared | in the same model |",
-        "|---|---|---|---|---|---|",
-    ]
-    with tempfile.TemporaryDirectory() as temporary:
-        for real_set in SETS:
-            dataset = Path(temporary) / real_set.name
-            _import(real_set, dataset)
-            result = _calibrate(dataset, "all")
-            print(_table(real_set, result))
-            summary.append(_summary_row(real_set, result))
-    print("\n".join(summary))
-
-
 def test_a_frame_whose_points_are_all_rejected_says_so_on_a_real_set(tmp_path: Path) -> None:
     """ical's frame 2 shows the board at its edge: OpenCV proposes 4 ChArUco corners and none has
     the 3 neighbours its fit needs. The frame says that, not that no board was found."""
@@ -376,3 +357,43 @@ def test_industrial_calibrations_pose_folder_imports_as_the_csv_does(tmp_path: P
     np.testing.assert_allclose(
         [r["T_base_flange"] for r in from_yaml.rows], [r["T_base_flange"] for r in from_csv.rows], atol=1e-12
     )
+
+
+def _pinned_summary_row(real_set: RealSet) -> str:
+    """A set's summary row as its pinned figures give it (_summary_row on the live run)."""
+    ekf, best = real_set.ekf, real_set.opencv
+    ratio = ekf.loo_mm / best.loo_mm
+    verdict = "hec better" if ratio < 1.0 else f"hec loses ({ratio:.2f}x)"
+    figures = (
+        f"{ekf.loo_mm:.3f} | {best.loo_mm:.3f} ({real_set.opencv_method}) | "
+        f"{ekf.declared_loo_mm:.3f} | {best.declared_loo_mm:.3f}"
+    )
+    return f"| {real_set.name} | {figures} | {verdict} |"
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/pages/index.md", "docs/pages/calibrate.md"])
+def test_the_documentation_shows_the_pinned_figures(page: str) -> None:
+    """The summary table wherever the documentation shows it holds the figures this test pins (and the
+    live run must reproduce), so it cannot drift from what the corpus gives."""
+    text = (REAL.parents[2] / page).read_text()
+    for real_set in SETS:
+        assert _pinned_summary_row(real_set) in text, (page, _pinned_summary_row(real_set))
+
+
+if __name__ == "__main__":
+    # python -m tests.test_real_corpus: import every set and print `hec calibrate --method all` as the
+    # tables of tests/data/real/README.md, then the summary table of the top-level README.
+    import tempfile
+
+    summary = [
+        "| set | ekf LOO mm | best OpenCV LOO mm | ekf declared | that OpenCV declared | in the same model |",
+        "|---|---|---|---|---|---|",
+    ]
+    with tempfile.TemporaryDirectory() as temporary:
+        for real_set in SETS:
+            dataset = Path(temporary) / real_set.name
+            _import(real_set, dataset)
+            result = _calibrate(dataset, "all")
+            print(_table(real_set, result))
+            summary.append(_summary_row(real_set, result))
+    print("\n".join(summary))
