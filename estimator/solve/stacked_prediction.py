@@ -68,10 +68,28 @@ def stacked_frames(problem: CalibrationProblem, board: bool) -> StackedFrames:
         np.array([f.T_base_flange for f in problem.frames]),
         np.concatenate(columns),
         np.concatenate([m.measured for _, m in markers]),
-        sparse.csr_array(sparse.block_diag([m.whitening for _, m in markers])),
+        _block_diagonal([m.whitening for _, m in markers]),
         np.repeat([i for i, _ in markers], heights),
         np.concatenate([np.arange(len(m.whitening)) < m.pixel_rows for _, m in markers]),
     )
+
+
+# The last block-diagonal whitening built and the blocks it was built from (held, so that identity
+# means the same arrays): a problem's self-calibrated variants share their markers' whitening.
+_last_whitening: tuple[list[np.ndarray], sparse.csr_array] | None = None
+
+
+def _block_diagonal(blocks: list[np.ndarray]) -> sparse.csr_array:
+    """sparse.block_diag of the blocks as a CSR array, reused when the blocks are the very arrays of
+    the last call (the noise learning stacks each adjusted problem's frames, some 250 times)."""
+    global _last_whitening
+    if _last_whitening is not None:
+        last_blocks, last = _last_whitening
+        if len(last_blocks) == len(blocks) and all(a is b for a, b in zip(last_blocks, blocks, strict=True)):
+            return last
+    whitening = sparse.csr_array(sparse.block_diag(blocks))
+    _last_whitening = (list(blocks), whitening)
+    return whitening
 
 
 @dataclass
