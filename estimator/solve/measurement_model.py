@@ -222,35 +222,17 @@ def predict_points(
     landmark rows (P,) (landmark mode), C per marker; camera: with the corner bias's derivatives
     for camera_jacobian_rows (QR boards)."""
     R_X, t_X = state.T_flange_cam[:3, :3], state.T_flange_cam[:3, 3]
-    corners_board = rows = None
-    if state.T_base_board is not None:
-        R_B, t_B = state.T_base_board[:3, :3], state.T_base_board[:3, 3]
-        corners_board = points
-        if problem.board_bend_m != (0.0, 0.0):
-            corners_board = corners_board + np.outer(
-                _bend_shapes(problem, corners_board) @ problem.board_bend_m, [0, 0, 1]
-            )
-        p_base = corners_board @ R_B.T + t_B
-    else:
-        rows = points
-        p_base = state.landmarks_base[rows]
+    corners_board, rows, p_base = base_points(problem, state, points)
     p_flange = _rotated(p_base - t_F, R_F)
     p_cam = (p_flange - t_X) @ R_X
-    pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
-    fitted = homography_fitted(problem)
-    distorted = fitted and any(problem.intrinsics.dist)
-    bias = marker_fit_bias(p_cam.reshape(-1, 4, 3), problem.intrinsics) if distorted else None
-    if bias is not None:
-        pixels = pixels + bias.reshape(-1, 2)
     scale = 1.0 if state.depth_scale is None else state.depth_scale
-    gain = float(np.exp(problem.depth_bias[0]))
-    tilt = problem.depth_tilt
-    depth = gain * (scale * p_cam[:, 2] + problem.depth_bias[1] + p_cam[:, :2] @ tilt)
-    C = problem.points_per_marker
-    predicted = np.concatenate([pixels.reshape(-1, 2 * C), depth.reshape(-1, C)], axis=1).reshape(-1)
+    predicted, pixels, depth, bias, (d_pix, xy, xy_d) = measurements(problem, p_cam, scale)
     if not jacobians:
         return PointPrediction(predicted, pixels, depth, p_cam)
-
+    fitted = homography_fitted(problem)
+    distorted = bias is not None
+    gain = float(np.exp(problem.depth_bias[0]))
+    tilt = problem.depth_tilt
     P = len(p_cam)
     fit = None
     if distorted or (camera and fitted):
@@ -264,7 +246,8 @@ def predict_points(
     d_cam_d_state[:, :, :6] = np.concatenate([np.broadcast_to(-RXt, (P, 3, 3)), skew_rows(p_cam)], axis=2)
     if corners_board is not None:
         d_base_d_B = np.concatenate(
-            [np.broadcast_to(np.eye(3), (P, 3, 3)), -R_B @ skew_rows(corners_board)], axis=2
+            [np.broadcast_to(np.eye(3), (P, 3, 3)), -state.T_base_board[:3, :3] @ skew_rows(corners_board)],
+            axis=2,
         )
         d_cam_d_state[:, :, 6:12] = RXt_RFt @ d_base_d_B
     else:
@@ -282,6 +265,40 @@ def predict_points(
     return PointPrediction(
         predicted, pixels, depth, p_cam, J_state, J_flange, xy, xy_d, fit, d_meas_d_cam, RXt_RFt
     )
+
+
+def base_points(
+    problem: CalibrationProblem, state: HandEyeState, points: np.ndarray
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """predict_points' points in the base frame (P, 3), with the board's corners as bent (P, 3; board
+    mode) or the landmark rows (P,; landmark mode), the other None."""
+    if state.T_base_board is None:
+        return None, points, state.landmarks_base[points]
+    corners_board = points
+    if problem.board_bend_m != (0.0, 0.0):
+        corners_board = corners_board + np.outer(
+            _bend_shapes(problem, corners_board) @ problem.board_bend_m, [0, 0, 1]
+        )
+    return corners_board, None, corners_board @ state.T_base_board[:3, :3].T + state.T_base_board[:3, 3]
+
+
+def measurements(
+    problem: CalibrationProblem, p_cam: np.ndarray, depth_scale: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """What the camera and the detector report for points p_cam (P, 3; C per marker, the markers in
+    order) with a depth scale (a number, or one per point): the per-marker layout predicted (3 P,),
+    pixels (P, 2) with the detector's corner bias, depths (P,), that bias (K, 2 C) or None, and
+    _projection's d(pixel)/d(p_cam) and normalised coordinates."""
+    pixels, d_pix, xy, xy_d = _projection(p_cam, problem)
+    distorted = homography_fitted(problem) and any(problem.intrinsics.dist)
+    bias = marker_fit_bias(p_cam.reshape(-1, 4, 3), problem.intrinsics) if distorted else None
+    if bias is not None:
+        pixels = pixels + bias.reshape(-1, 2)
+    gain = float(np.exp(problem.depth_bias[0]))
+    depth = gain * (depth_scale * p_cam[:, 2] + problem.depth_bias[1] + p_cam[:, :2] @ problem.depth_tilt)
+    C = problem.points_per_marker
+    predicted = np.concatenate([pixels.reshape(-1, 2 * C), depth.reshape(-1, C)], axis=1).reshape(-1)
+    return predicted, pixels, depth, bias, (d_pix, xy, xy_d)
 
 
 def _bend_shapes(problem: CalibrationProblem, corners_board: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ Update. a (n_a,) is the perturbation of the augmented state [state (dim); deltas
 (deltas left out when the robot noise is zero), prior N(0, P_a), P_a = blockdiag(P, robot
 covariances) = L_a L_a^T; a moves the state by HandEyeState.plus and the flange poses by
 lie.pose_plus. The filter sees the whitened measurement W z, predicted as W h(a) = W z - r(a),
-where r(a) is the stacked whitened residual of measurement_model.predict_frame; its noise is I.
+where r(a) is the stacked whitened residual of the measurement model (whitened_residuals); its noise is I.
 Sigma points a_0 = 0 and a_{+-j} = +-s L_j (columns of L = L_a), with e_{+-j} = r(a_{+-j}) - r(0),
 q_j = e_{+j} + e_{-j} and the weight w = 1 / (2 s^2) of every point but the centre:
 
@@ -94,6 +94,7 @@ import time
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
+from hec.estimator.geometry.lie import pose_plus
 from hec.estimator.solve.calibration import Calibration, MethodOptions, calibration_from_state
 from hec.estimator.solve.filters import (
     IEKF_MAX_ITERATIONS,
@@ -105,7 +106,7 @@ from hec.estimator.solve.filters import (
     update_groups,
 )
 from hec.estimator.solve.initialise import initial_state
-from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.measurement_model import HandEyeState, base_points, marker_points, measurements
 from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
 # Sigma points at +-SPREAD standard deviations: n_a + lambda = SPREAD^2 (see the module doc).
@@ -131,23 +132,33 @@ def augmented_covariance(problem: CalibrationProblem, P: np.ndarray, frames: int
     return P_a
 
 
-def whitened_residual(
-    problem: CalibrationProblem, state: HandEyeState, frames: list[FrameMeasurements], a: np.ndarray
+def whitened_residuals(
+    problem: CalibrationProblem, state: HandEyeState, frames: list[FrameMeasurements], A: np.ndarray
 ) -> np.ndarray:
-    """(m,) whitened residual W (z - h) of the frames' markers, stacked, at the augmented
-    perturbation a (n_a,): state.plus(a[:dim]), and frame j's reported flange pose perturbed by
-    a[dim + 6 j : dim + 6 j + 6] when the robot noise is not zero."""
+    """(S, m) whitened residuals W (z - h) of the frames' markers, stacked, at each augmented
+    perturbation of A (S, n_a): state.plus(a[:dim]), and frame j's reported flange pose perturbed by
+    a[dim + 6 j : dim + 6 j + 6] when the robot noise is not zero. Every sigma point's camera points
+    go through the camera and the detector's bias in one call (measurement_model.measurements)."""
     n = state.dim
-    moved = state.plus(a[:n])
-    with_robot = len(a) > n
-    return np.concatenate(
-        [
-            predict_frame(
-                problem, moved, f, a[n + 6 * j : n + 6 * j + 6] if with_robot else None, jacobians=False
-            ).residual
-            for j, f in enumerate(frames)
-        ]
-    )
+    with_robot = A.shape[1] > n
+    moved = [state.plus(a[:n]) for a in A]
+    scales = np.array([1.0 if m.depth_scale is None else m.depth_scale for m in moved])
+    out = []
+    for j, frame in enumerate(frames):
+        points = marker_points(problem, frame.markers, state.T_base_board is not None)
+        p_cam = np.empty((len(A), len(points), 3))
+        for k, (m, a) in enumerate(zip(moved, A, strict=True)):
+            T_F = (
+                pose_plus(frame.T_base_flange, a[n + 6 * j : n + 6 * j + 6])
+                if with_robot
+                else frame.T_base_flange
+            )
+            p_flange = (base_points(problem, m, points)[2] - T_F[:3, 3]) @ T_F[:3, :3]
+            p_cam[k] = (p_flange - m.T_flange_cam[:3, 3]) @ m.T_flange_cam[:3, :3]
+        predicted = measurements(problem, p_cam.reshape(-1, 3), np.repeat(scales, len(points)))[0]
+        stacked = frame.stacked
+        out.append((stacked.measured - predicted.reshape(len(A), -1)[:, stacked.rows]) @ stacked.whitening.T)
+    return np.concatenate(out, axis=1)
 
 
 def gate(
@@ -190,9 +201,9 @@ def update(
     a, L = np.zeros(n_a), L_prior
     for iteration in range(1, max_iterations + 1):
         columns = SPREAD * L.T  # (n_a, n_a): the sigma points a +- columns (rows)
-        r_centre = whitened_residual(problem, state, frames, a)
-        E_plus = np.array([whitened_residual(problem, state, frames, a + c) for c in columns]) - r_centre
-        E_minus = np.array([whitened_residual(problem, state, frames, a - c) for c in columns]) - r_centre
+        residuals = whitened_residuals(problem, state, frames, np.vstack([a, a + columns, a - columns]))
+        r_centre = residuals[0]
+        E_plus, E_minus = residuals[1 : n_a + 1] - r_centre, residuals[n_a + 1 :] - r_centre
         Q = E_plus + E_minus  # (n_a, m) second differences
         mu = weight * Q.sum(axis=0)
         D = -weight * SPREAD * (E_plus - E_minus)  # (n_a, m): cross covariance L D, regression A^T = L^-T D
