@@ -15,7 +15,7 @@ import numpy as np
 
 from hec.estimator.geometry.lie import pose_minus, so3_right_jacobian_inverse
 from hec.estimator.geometry.transforms import transform_points
-from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.measurement_model import HandEyeState, marker_points, predict_points
 from hec.estimator.solve.problem import CalibrationProblem
 
 # Prior used when the caller gives none: so wide it adds no information.
@@ -135,22 +135,31 @@ class Calibration:
 def marker_residuals(
     problem: CalibrationProblem, state: HandEyeState, rejected: set[tuple[int, int]] | None = None
 ) -> list[MarkerResidual]:
-    """Per-marker residuals at a state, with the reported flange poses.
+    """Per-marker residuals at a state, with the reported flange poses, every frame in one prediction.
     rejected: (frame, marker_id) pairs the method left out."""
     rejected = rejected or set()
-    out = []
-    for frame in problem.frames:
-        pred = predict_frame(problem, state, frame, jacobians=False)
-        corners_px = np.concatenate([m.corners_px for m in frame.markers])
-        C = problem.points_per_marker
-        rms_px = np.sqrt(np.mean(np.sum((pred.pixels - corners_px) ** 2, axis=1).reshape(-1, C), axis=1))
-        depth_m = np.array([np.full(C, np.nan) if m.depth_m is None else m.depth_m for m in frame.markers])
-        depth_mm = 1e3 * np.sqrt(np.mean((pred.depth_m.reshape(-1, C) - depth_m) ** 2, axis=1))
-        for k, m in enumerate(frame.markers):
-            depth = None if m.depth_m is None else float(depth_mm[k])
-            used = (frame.frame, m.marker_id) not in rejected
-            out.append(MarkerResidual(frame.frame, m.marker_id, float(rms_px[k]), depth, used))
-    return out
+    markers = [(f.frame, m) for f in problem.frames for m in f.markers]
+    if not markers:
+        return []
+    C = problem.points_per_marker
+    frame_of_point = np.repeat([i for i, f in enumerate(problem.frames) for _ in f.markers], C)
+    T_F = np.array([f.T_base_flange for f in problem.frames])[frame_of_point]
+    points = marker_points(problem, [m for _, m in markers], state.T_base_board is not None)
+    pred = predict_points(problem, state, points, T_F[:, :3, :3], T_F[:, :3, 3], jacobians=False)
+    corners_px = np.concatenate([m.corners_px for _, m in markers])
+    rms_px = np.sqrt(np.mean(np.sum((pred.pixels - corners_px) ** 2, axis=1).reshape(-1, C), axis=1))
+    depth_m = np.array([np.full(C, np.nan) if m.depth_m is None else m.depth_m for _, m in markers])
+    depth_mm = 1e3 * np.sqrt(np.mean((pred.depth.reshape(-1, C) - depth_m) ** 2, axis=1))
+    return [
+        MarkerResidual(
+            frame,
+            m.marker_id,
+            float(rms_px[k]),
+            None if m.depth_m is None else float(depth_mm[k]),
+            (frame, m.marker_id) not in rejected,
+        )
+        for k, (frame, m) in enumerate(markers)
+    ]
 
 
 def landmarks_by_marker(problem: CalibrationProblem, state: HandEyeState) -> dict[int, np.ndarray]:
