@@ -44,6 +44,7 @@ from hec.estimator.io.calibration_file import (
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.solve.batch import one_blas_thread
 from hec.estimator.solve.calibration import MethodOptions, Prior
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import METHODS, needs_learned_noise, run_method
@@ -333,9 +334,10 @@ def calibrate_dataset(
     _note_ignored_options(settings)
     check_poses_fit(dataset, problem)
     try:
-        results = run_methods(
-            settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
-        )
+        with one_blas_thread():  # small matrices: BLAS threads cost more than they give (hec.bench.calibrate)
+            results = run_methods(
+                settings.methods, problem, options, observations, quiet, settings.loo, settings.loo_budget_s
+            )
     except CalibrationInputError as exc:
         for line in convention_lines(dataset, problem, [MethodFailure(settings.method, str(exc))]):
             print(line)
