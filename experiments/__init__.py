@@ -1,12 +1,35 @@
 """hec: eye-in-hand calibration of a camera on a robot's flange, proven against a simulated cell.
 
-The library is ``hec.estimator`` (detection, estimation, file formats), the simulated cell
-``hec.sim`` (extra ``hec[sim]``) and the real cell ``hec.hardware`` (extras ``hec[ur]`` and
-``hec[realsense]``); the ``hec`` command line is ``hec.cli``.
+The public API is hec.api, its names here: ``hec.load_dataset``, ``hec.detect``, ``hec.calibrate``,
+``hec.write_report``, ``hec.verdict``, ``hec.findings`` and the types ``hec.Dataset``,
+``hec.Calibration`` and ``hec.Verdict`` (loaded on first use, so
+that the command line starts fast). The library is ``hec.estimator`` (detection, estimation, file
+formats), the simulated cell ``hec.sim`` (extra ``hec[sim]``) and the real cell ``hec.hardware``
+(extras ``hec[ur]`` and ``hec[realsense]``); the ``hec`` command line is ``hec.cli``.
 """
 
 from __future__ import annotations
 
 from hec.support.version import VERSION as __version__
 
-__all__ = ["__version__"]
+API = (
+    "Calibration",
+    "Dataset",
+    "Verdict",
+    "calibrate",
+    "detect",
+    "findings",
+    "load_dataset",
+    "verdict",
+    "write_report",
+)
+__all__ = ["__version__", *API]
+
+
+def __getattr__(name: str) -> object:
+    """hec.api's names, imported when first asked for."""
+    if name in API:
+        from hec import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'hec' has no attribute {name!r}")

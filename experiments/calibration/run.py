@@ -1,0 +1,135 @@
+"""Running calibration methods on one problem: the fail-fast check that the poses fit the images at
+all, the noise learned once and shared, each method's leave-one-frame-out folds, the arm's findings
+and the pick error (what `hec calibrate` and hec.api both run)."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from hec.calibration.arm_findings import joint_order_warning, joint_zero_warning
+from hec.calibration.loo import (
+    BUDGET_S,
+    LOO_DECLARED_KEY,
+    LooModel,
+    add_cross_validation,
+    declared_model,
+    self_calibrated_model,
+)
+from hec.calibration.report import MethodFailure, Result, add_pick_error
+from hec.estimator.observe.frames import Dataset
+from hec.estimator.observe.observations import FrameObservations
+from hec.estimator.solve.calibration import MethodOptions
+from hec.estimator.solve.methods import needs_learned_noise, run_method
+from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
+from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
+
+
+def run_methods(
+    names: list[str],
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    observations: list[FrameObservations],
+    quiet: bool = True,
+    loo: bool = False,
+    loo_budget_s: float | None = BUDGET_S,
+) -> list[Result]:
+    """Each method on the same problem. With several, a CalibrationInputError becomes a MethodFailure;
+    with one, it is raised. loo: cross-validate each result whose folds fit in loo_budget_s seconds
+    (None: any), hec.calibration.loo: one method in the model it ran with, several in the
+    self-calibrated and the declared model alike; the others say why not."""
+    results: list[Result] = []
+    learned = None  # learned once, shared by the methods that model the noise
+    order_warning = joint_order_warning(problem)
+    if loo and len(names) > 1 and options.learn_noise:
+        try:
+            learned = _learn_noise(problem, options, quiet)
+        except CalibrationInputError:
+            pass  # each method that needs it fails with the reason
+    bar = tqdm(names, desc="calibrate", unit="method", disable=quiet or len(names) == 1, file=sys.stderr)
+    for name in bar:
+        bar.set_postfix_str(name)
+        try:
+            if learned is None and needs_learned_noise(name, options):
+                learned = _learn_noise(problem, options, quiet)
+            cal = run_method(name, problem, options, observations, learned)
+        except CalibrationInputError as exc:
+            if len(names) == 1:
+                raise
+            results.append(MethodFailure(name, str(exc)))
+            continue
+        models = _loo_models(name, len(names) > 1, problem, options, learned) if loo else []
+        for model in models or [declared_model(problem, options)]:
+            add_cross_validation(cal, name, model, observations, loo, loo_budget_s, quiet)
+        if needs_learned_noise(name, options):  # the methods that self-calibrate the arm
+            arm = [order_warning, joint_zero_warning(cal.diagnostics.get("noise"))]
+            cal.warnings.extend(w for w in arm if w is not None and w not in cal.warnings)
+        add_pick_error(cal, problem)
+        results.append(cal)
+    return results
+
+
+def _learn_noise(problem: CalibrationProblem, options: MethodOptions, quiet: bool) -> LearnedNoise:
+    """learn_noise, saying what it does and how long it took unless quiet (it takes seconds)."""
+    if not quiet:
+        print(
+            "calibrate: learning the noise from the data (and what the camera, board and arm need)",
+            file=sys.stderr,
+        )
+    start = time.perf_counter()
+    learned = learn_noise(problem, options)
+    if not quiet:
+        groups = ", ".join(g.replace("_", " ") for g in learned.groups_kept) or "nothing"
+        print(
+            f"calibrate: learned in {time.perf_counter() - start:.1f} s; self-calibrated: {groups}",
+            file=sys.stderr,
+        )
+    return learned
+
+
+def _loo_models(
+    name: str,
+    several: bool,
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    learned: LearnedNoise | None,
+) -> list[LooModel]:
+    """The models a method is cross-validated in: with several methods, the self-calibrated one (when
+    the noise was learned) and the declared one, alike for all; alone, the one it ran with."""
+    if learned is not None and (several or needs_learned_noise(name, options)):
+        declared = [declared_model(problem, options, LOO_DECLARED_KEY)] if several else []
+        return [self_calibrated_model(problem, options, learned), *declared]
+    return [declared_model(problem, options)]
+
+
+def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
+    """Fail in seconds, before any estimation, when the robot poses do not fit the images at any mount:
+    OpenCV's Park method (milliseconds) leaves MAX_CORNER_RMS_PX or more. The error says why, with the
+    convention check of an imported dataset's pose numbers (hec.estimator.io.convention_check)."""
+    from hec.estimator.solve.baselines import opencv_calibrate
+    from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
+
+    try:
+        park = opencv_calibrate(problem, MethodOptions(), "opencv-park")
+    except CalibrationInputError:
+        return  # too few or degenerate views: each method says so itself
+    if park.residual_rms_px < MAX_CORNER_RMS_PX:
+        return
+    from hec.estimator.io.convention_check import check_pose_convention, px_text
+
+    record = dataset.metadata.get("provenance") or {}
+    if "pose_values" in record:
+        from hec.estimator.io.pose_file import PoseConvention
+
+        stated = PoseConvention(**record["pose_convention"])
+        why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
+    else:
+        why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
+    raise CalibrationInputError(
+        "the robot poses do not fit the images at any mount (the best closed-form mount leaves "
+        f"{px_text(park.residual_rms_px)} RMS, {MAX_CORNER_RMS_PX:.0f} px is the most any model explains); "
+        + why
+    )
