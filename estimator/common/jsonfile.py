@@ -1,9 +1,11 @@
-"""Reading JSON files whose errors name the file."""
+"""Reading JSON and YAML files whose errors name the file."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+
+import yaml
 
 
 def read_json_object(path: Path, error: type[Exception], missing: str = "file missing") -> dict:
@@ -17,6 +19,20 @@ def read_json_object(path: Path, error: type[Exception], missing: str = "file mi
         raise error(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict):
         raise error(f"{path}: expected a JSON object")
+    return data
+
+
+def read_yaml_object(path: Path, error: type[Exception], missing: str = "file missing") -> dict:
+    """The YAML mapping in ``path`` (JSON is YAML); raises ``error`` naming the file when it is
+    missing (with the words ``missing``), not YAML, or not a mapping."""
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise error(f"{path}: {missing}") from None
+    except yaml.YAMLError as exc:
+        raise error(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a YAML mapping")
     return data
 
 

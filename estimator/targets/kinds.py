@@ -11,10 +11,8 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-import yaml
-
 from hec.estimator.common.files import write_atomic
-from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.common.jsonfile import read_json_object, read_yaml_object
 from hec.estimator.common.models import models_dir
 from hec.estimator.targets.aprilgrid import AprilGridBoard, AprilGridDetector
 from hec.estimator.targets.board import BoardDefinition
@@ -53,23 +51,9 @@ def load_board(path: str | Path) -> Target:
     """Read a board file of any kind, JSON or YAML, hec's or another tool's (tool_boards); errors
     name the file and the field."""
     path = Path(path)
-    if path.suffix.lower() in (".yaml", ".yml"):
-        data = _read_yaml_object(path)
-    else:
-        data = read_json_object(path, BoardDefinitionError, "board definition file not found")
+    read = read_yaml_object if path.suffix.lower() in (".yaml", ".yml") else read_json_object
+    data = read(path, BoardDefinitionError, "board definition file not found")
     return board_from_dict(hec_board_dict(data, str(path)), source=str(path))
-
-
-def _read_yaml_object(path: Path) -> dict:
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise BoardDefinitionError(f"{path}: board definition file not found") from None
-    except yaml.YAMLError as exc:
-        raise BoardDefinitionError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
-    if not isinstance(data, dict):
-        raise BoardDefinitionError(f"{path}: expected a YAML mapping of the board's fields")
-    return data
 
 
 def save_board(board: Target, path: str | Path) -> Path:
