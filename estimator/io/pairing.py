@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hec.estimator.io.pose_table import NumberTable
+from hec.estimator.io.pose_table import NumberTable, number_in_name
 
 PAIR_BY = ("name", "number", "time", "order")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -113,16 +113,12 @@ def pair_images(
 def _by_file_number(images: list[Path], table: NumberTable) -> Pairing:
     """Each image with the pose file carrying the same number (a folder of pose files)."""
     by_number: dict[int, Path] = {}
+    why = f"paired with {table.path}'s files by the number in the names"
     for image in images:
-        digits = _DIGITS.findall(image.stem)
-        if len(digits) != 1:
-            raise PairingError(
-                f"{image}: paired with {table.path}'s files by the number in the names, and "
-                f"{image.name!r} carries {'no number' if not digits else 'several numbers'}"
-            )
-        if int(digits[0]) in by_number:
-            raise PairingError(f"{image.name} and {by_number[int(digits[0])].name} carry the same number")
-        by_number[int(digits[0])] = image
+        number = number_in_name(image, PairingError, why)
+        if number in by_number:
+            raise PairingError(f"{image.name} and {by_number[number].name} carry the same number")
+        by_number[number] = image
     unposed = sorted(set(by_number) - set(table.numbers))
     unimaged = [w for n, w in zip(table.numbers, table.where, strict=True) if n not in by_number]
     if unposed or unimaged:

@@ -16,9 +16,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from hec.estimator.io.pose_table import NumberTable, PoseFileError, check_table
+from hec.estimator.io.pose_table import NumberTable, PoseFileError, check_table, number_in_name
 
-_DIGITS = re.compile(r"\d+")
 _SEPARATORS = re.compile(r"[\s,;\[\]]+")
 
 
@@ -28,21 +27,14 @@ def read_pose_folder(folder: Path) -> NumberTable:
     files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
     if not files:
         raise PoseFileError(f"{folder}: an empty pose folder")
-    numbered = []
-    for path in files:
-        digits = _DIGITS.findall(path.stem)
-        if len(digits) != 1:
-            raise PoseFileError(
-                f"{path}: a pose folder's files are named by their image's number ('12.yaml'), and "
-                f"{path.name!r} carries {'no number' if not digits else 'several numbers'}"
-            )
-        numbered.append((int(digits[0]), path))
-    numbered.sort()
+    why = "a pose folder's files are named by their image's number ('12.yaml')"
+    numbered = sorted((number_in_name(path, PoseFileError, why), path) for path in files)
     repeated = [n for (n, _), (m, _) in zip(numbered, numbered[1:], strict=False) if n == m]
     if repeated:
         twins = [p.name for n, p in numbered if n == repeated[0]]
         raise PoseFileError(f"{folder}: {' and '.join(twins)} carry the same number {repeated[0]}")
-    rows = [_in_order_of(_read_one(path), _read_one(numbered[0][1])[1]) for _, path in numbered]
+    rows = [_read_one(path) for _, path in numbered]
+    rows = [_in_order_of(row, rows[0][1]) for row in rows]
     differs = next(
         (i for i, row in enumerate(rows) if (len(row[0]), row[1]) != (len(rows[0][0]), rows[0][1])), None
     )

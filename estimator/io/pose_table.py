@@ -76,6 +76,16 @@ def read_number_table(path: str | Path, field: str = "pose") -> NumberTable:
     return table
 
 
+def number_in_name(path: Path, error: type[Exception], why: str) -> int:
+    """The one run of digits in path's name (without its suffix); error naming the file, why the
+    number is needed, and whether the name carries none or several."""
+    digits = re.findall(r"\d+", path.stem)
+    if len(digits) != 1:
+        carries = "no number" if not digits else "several numbers"
+        raise error(f"{path}: {why}, and {path.name!r} carries {carries}")
+    return int(digits[0])
+
+
 def check_table(table: NumberTable, what: str) -> None:
     """PoseFileError for an empty table, a NaN or an image listed twice; notes for repeated rows."""
     if len(table.values) == 0:

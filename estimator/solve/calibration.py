@@ -162,6 +162,14 @@ def marker_residuals(
     ]
 
 
+def calibration_state(problem: CalibrationProblem, cal: Calibration) -> HandEyeState:
+    """The HandEyeState a calibration of this problem ended at (its mount and board or landmarks)."""
+    if cal.T_base_board is not None:
+        return HandEyeState(cal.T_flange_cam, T_base_board=cal.T_base_board)
+    corners = np.concatenate([cal.landmarks_base[i] for i in problem.marker_ids])
+    return HandEyeState(cal.T_flange_cam, landmarks_base=corners)
+
+
 def landmarks_by_marker(problem: CalibrationProblem, state: HandEyeState) -> dict[int, np.ndarray]:
     """{marker_id: (C, 3) points in the base frame} from either map model."""
     if state.landmarks_base is not None:

@@ -10,10 +10,9 @@ import numpy as np
 from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.baselines import MISFIT_RESIDUAL_PX, OPENCV_METHODS, opencv_calibrate
 from hec.estimator.solve.batch import batch
-from hec.estimator.solve.calibration import Calibration, MethodOptions, marker_residuals
+from hec.estimator.solve.calibration import Calibration, MethodOptions, calibration_state, marker_residuals
 from hec.estimator.solve.filters import run_filter
 from hec.estimator.solve.fit_check import check_fit
-from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
 from hec.estimator.solve.noise_levels import scaled_problem
 from hec.estimator.solve.observability import observability
@@ -142,17 +141,10 @@ def run_method(
         )
     noise = result.diagnostics.get("noise")
     seen = camera_problem(name, problem, noise)
-    report = observability(seen, _map_state(problem, result))
+    report = observability(seen, calibration_state(problem, result))
     result.diagnostics["observability"] = report
     result.warnings.extend(w for w in report.warnings if w not in result.warnings)
     return result
-
-
-def _map_state(problem: CalibrationProblem, result: Calibration) -> HandEyeState:
-    if result.T_base_board is not None:
-        return HandEyeState(result.T_flange_cam, T_base_board=result.T_base_board)
-    corners = np.concatenate([result.landmarks_base[i] for i in problem.marker_ids])
-    return HandEyeState(result.T_flange_cam, landmarks_base=corners)
 
 
 def _account_for_learning(
@@ -161,7 +153,7 @@ def _account_for_learning(
     """Residuals and counts of a result solved on the learned problem, over the whole problem
     (adjusted: with the camera and board the method solved with): the learning pass's outliers
     and the method's own rejections are not used. The fit check reads the declared problem."""
-    state = _map_state(problem, result)
+    state = calibration_state(problem, result)
     rejected = learned.outliers | {(r.frame, r.marker_id) for r in result.residuals if not r.used}
     if len(rejected) == problem.observation_count:
         raise CalibrationInputError(

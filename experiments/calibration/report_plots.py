@@ -9,9 +9,9 @@ import numpy as np
 
 from hec.calibration.loo import LOO_KEY
 from hec.estimator.observe.frames import Dataset
-from hec.estimator.solve.calibration import Calibration
+from hec.estimator.solve.calibration import Calibration, calibration_state
 from hec.estimator.solve.cross_validation import CrossValidation
-from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.measurement_model import predict_frame
 from hec.estimator.solve.methods import camera_problem
 from hec.estimator.solve.problem import CalibrationProblem
 from hec.support.plotting import figure, legend_below, png_bytes
@@ -120,7 +120,7 @@ def frame_overlays(
     orange for markers the method left out) and its residual to where the calibration predicts it,
     drawn RESIDUAL_SCALE times its length (a red line)."""
     adjusted = camera_problem(cal.method, problem, cal.diagnostics.get("noise"))
-    state = _state(adjusted, cal)
+    state = calibration_state(adjusted, cal)
     left_out = {(r.frame, r.marker_id) for r in cal.residuals if not r.used}
     P = adjusted.points_per_marker
     out = []
@@ -139,13 +139,6 @@ def frame_overlays(
         _, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
         out.append((frame.frame, jpeg.tobytes()))
     return out
-
-
-def _state(problem: CalibrationProblem, cal: Calibration) -> HandEyeState:
-    if cal.T_base_board is not None:
-        return HandEyeState(cal.T_flange_cam, T_base_board=cal.T_base_board)
-    landmarks = np.concatenate([cal.landmarks_base[i] for i in problem.marker_ids])
-    return HandEyeState(cal.T_flange_cam, landmarks_base=landmarks)
 
 
 def _board_outline_base(problem: CalibrationProblem, cal: Calibration) -> np.ndarray:
