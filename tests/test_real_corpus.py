@@ -95,18 +95,27 @@ SETS = [
 ]
 
 
-def _import(real_set: RealSet, out: Path, poses: Path | None = None) -> str:
-    """`hec import folder` of the set (with another pose file if given) into out; returns what it
-    printed."""
+def _import(real_set: RealSet, out: Path, poses: Path | None = None, extra: tuple[str, ...] = ()) -> str:
+    """`hec import folder` of the set (with another pose file or folder, and extra options, if given)
+    into out; returns what it printed."""
     folder = REAL / real_set.name
     poses = poses or folder / "poses.csv"
     options = [o if not o.endswith((".yaml", ".yml")) else str(folder / o) for o in real_set.import_options]
     code, stdout, stderr = run_hec(
-        ["import", "folder", str(folder / "images"), "--poses", str(poses), *options,
+        ["import", "folder", str(folder / "images"), "--poses", str(poses), *options, *extra,
          "--board", str(folder / "board.json"), "--out", str(out), "--quiet"]
     )  # fmt: skip
     assert code == 0, stderr
     return stdout + stderr
+
+
+def _assert_same_poses(imported: Path, from_csv: Path) -> None:
+    """Two imports of one set hold the same images with the same flange poses."""
+    one, other = load_dataset(imported), load_dataset(from_csv)
+    assert [r["rgb"] for r in one.rows] == [r["rgb"] for r in other.rows]
+    np.testing.assert_allclose(
+        [r["T_base_flange"] for r in one.rows], [r["T_base_flange"] for r in other.rows], atol=1e-12
+    )
 
 
 def _calibrate(dataset: Path, method: str) -> dict:
@@ -331,11 +340,7 @@ def test_urscript_pose_lines_import_as_the_csv_does(tmp_path: Path, layout: str)
     printed = _import(real_set, tmp_path / "ur", tmp_path / "ur_poses.txt")
     assert "the robot poses fit the stated convention" in printed, printed
     _import(real_set, tmp_path / "csv")
-    ur, csv = (load_dataset(tmp_path / name) for name in ("ur", "csv"))
-    assert [r["rgb"] for r in ur.rows] == [r["rgb"] for r in csv.rows]
-    np.testing.assert_allclose(
-        [r["T_base_flange"] for r in ur.rows], [r["T_base_flange"] for r in csv.rows], atol=1e-12
-    )
+    _assert_same_poses(tmp_path / "ur", tmp_path / "csv")
 
 
 @pytest.mark.parametrize("rotation", ["quat-wxyz", "quat-xyzw"])
@@ -343,20 +348,10 @@ def test_industrial_calibrations_pose_folder_imports_as_the_csv_does(tmp_path: P
     """ical's own poses/N.yaml, one per image, each listing x y z qx qy qz qw in its own order: read by
     their names and paired by number, whichever quaternion order is stated, they give the CSV's poses."""
     real_set = next(s for s in SETS if s.name == "ical_charuco_eye_to_hand")
-    folder = REAL / real_set.name
-    code, stdout, stderr = run_hec(
-        ["import", "folder", str(folder / "images"), "--poses", str(folder / "poses"), "--rotation", rotation,
-         "--pose-direction", "flange-to-base", "--intrinsics", str(folder / "camera.yaml"),
-         "--board", str(folder / "board.json"), "--out", str(tmp_path / "yaml"), "--quiet"]
-    )  # fmt: skip
-    assert code == 0, stderr
-    assert "by the number in each image's name and each pose file's name: 00.jpg - 0.yaml" in stdout, stdout
+    printed = _import(real_set, tmp_path / "yaml", REAL / real_set.name / "poses", ("--rotation", rotation))
+    assert "by the number in each image's name and each pose file's name: 00.jpg - 0.yaml" in printed, printed
     _import(real_set, tmp_path / "csv")
-    from_yaml, from_csv = (load_dataset(tmp_path / name) for name in ("yaml", "csv"))
-    assert [r["rgb"] for r in from_yaml.rows] == [r["rgb"] for r in from_csv.rows]
-    np.testing.assert_allclose(
-        [r["T_base_flange"] for r in from_yaml.rows], [r["T_base_flange"] for r in from_csv.rows], atol=1e-12
-    )
+    _assert_same_poses(tmp_path / "yaml", tmp_path / "csv")
 
 
 def _pinned_summary_row(real_set: RealSet) -> str:
