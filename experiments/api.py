@@ -18,10 +18,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hec import API
 from hec.calibration.html_report import write_calibration_report
 from hec.calibration.run import check_poses_fit, run_methods
-from hec.calibration.summary import Verdict, findings, verdict  # noqa: F401 (the API's, by hec.API)
+from hec.calibration.summary import Verdict, findings, verdict
 from hec.estimator.io.dataset import load_dataset as _load_dataset
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.observations import FrameObservations
@@ -31,7 +30,18 @@ from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.problem import CalibrationProblem, build_problem, dataset_arm, dataset_robot_noise
 from hec.support.detection import cached_or_detected
 
-__all__ = list(API)  # the names hec itself offers (hec/__init__.py)
+# hec.API lists them too, for hec's lazy __getattr__ (tests/test_api.py checks the two agree)
+__all__ = [
+    "Calibration",
+    "Dataset",
+    "Verdict",
+    "calibrate",
+    "detect",
+    "findings",
+    "load_dataset",
+    "verdict",
+    "write_report",
+]
 
 
 def load_dataset(path: str | Path) -> Dataset:

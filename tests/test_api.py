@@ -17,6 +17,14 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "calibrate_a_dataset.py"
 
 
+def test_hec_offers_every_name_of_its_api() -> None:
+    import hec
+    from hec import api
+
+    assert sorted(hec.API) == sorted(api.__all__)
+    assert all(getattr(hec, name) is getattr(api, name) for name in hec.API)
+
+
 def test_importing_hec_does_not_load_the_api() -> None:
     code = (
         "import sys, hec; assert 'hec.api' not in sys.modules; hec.calibrate; assert 'hec.api' in sys.modules"
