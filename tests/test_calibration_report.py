@@ -54,3 +54,12 @@ def test_the_report_of_one_calibration_opens_with_every_figure_drawn(
         assert f"<h2>{heading}</h2>" in dom
     assert re.search(r"<p class=\"verdict (good|usable|redo)\"><b>(good|usable|redo)</b>: ", dom), dom[:2000]
     assert "Cramer-Rao bound</th>" in dom
+
+
+def test_a_report_path_that_is_a_file_is_refused_before_any_work(tmp_path: Path) -> None:
+    taken = tmp_path / "notes.txt"
+    taken.write_text("mine")
+    code, _, stderr = run_hec(["calibrate", str(tmp_path / "dataset"), "--report", str(taken), "--quiet"])
+    assert code != 0
+    assert f"{taken}: is a file; --report takes a folder (report.html goes in it)" in stderr
+    assert taken.read_text() == "mine"

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import base64
 import html
+import os
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,16 @@ window.addEventListener("load", () => {
   document.body.dataset.figures = drawn + "/" + images.length;
 });
 """
+
+
+def check_report_dir(out_dir: Path) -> None:
+    """Raise now, before any work, when out_dir/report.html cannot be written: out_dir is a file, or
+    the folder it is (or would be made in) cannot be written."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise NotADirectoryError(f"{out_dir}: is a file; --report takes a folder (report.html goes in it)")
+    existing = next(p for p in (out_dir, *out_dir.parents) if p.exists())
+    if not os.access(existing, os.W_OK):
+        raise PermissionError(f"{out_dir}: cannot write in {existing}")
 
 
 def write_calibration_report(

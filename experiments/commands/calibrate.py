@@ -230,6 +230,10 @@ def calibrate_dataset(
     Raises CalibrationInputError and the other input errors."""
     if json_out is not None:
         check_json_path(json_out)
+    if report_dir is not None:
+        from hec.calibration.html_report import check_report_dir
+
+        check_report_dir(report_dir)
     dataset = load_dataset(dataset_path)
     options = method_options(settings)
     noise, noise_source = robot_noise(dataset, settings.robot_sigma_mm, settings.robot_sigma_deg)
