@@ -7,14 +7,24 @@ from __future__ import annotations
 import json
 import os
 import shlex
+import shutil
+import signal
 import stat
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from hec.estimator.io.dataset import DatasetWriter, load_dataset
 from tests.hec_cli import run_hec
 from tests.test_export import _calibration_file
+from tests.test_fault_pass import REPO, _wait_for
+from tests.test_import import FLANGE_TO_BASE, FOLDER_OPTIONS, _import, exported, rendered_samples
+
+__all__ = ["exported", "rendered_samples"]  # the fixtures of test_import, shared
 
 # --- export ---------------------------------------------------------------------------------------
 
@@ -139,3 +149,146 @@ def test_export_to_an_output_it_cannot_write_says_so_in_one_line(tmp_path: Path,
     target = tmp_path / out
     code, _, err = run_hec(["export", str(cal), "--to", "json", "--out", str(target)])
     assert code == 2 and said in err and "Errno" not in err and len(err.strip().splitlines()) == 1, err
+
+
+# --- import: an output never replaces a source, concurrent and killed runs ------------------------
+
+HOLD_WRITER = """
+import sys
+from hec.estimator.io.dataset import DatasetWriter
+with DatasetWriter(sys.argv[1], None, None, 0.001, "import") as writer:
+    print("writing", flush=True)
+    if sys.stdin.readline().strip() == "finish":
+        writer.add_pose(__import__("numpy").eye(4), 0.0)
+        writer.finish()
+"""
+
+
+def _writer_process(out: Path) -> subprocess.Popen:
+    """A real process writing a dataset at out, waiting (its partial folder made) for 'finish' or
+    'stop' on its stdin: deterministic, no timing."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", HOLD_WRITER, str(out)],
+        cwd=REPO,
+        env=os.environ | {"PYTHONPATH": str(REPO)},
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stdout.readline().strip() == "writing"
+    return process
+
+
+def _frame_count(dataset: Path) -> int:
+    return json.loads((dataset / "dataset.json").read_text())["frame_count"]
+
+
+def _folder_import(exported: dict[str, Path], out: Path, *options: str) -> list[str]:
+    return _import(exported, out, "folder", *FOLDER_OPTIONS, *FLANGE_TO_BASE, *options)
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_import_into_the_folder_that_holds_its_source_is_refused(
+    exported: dict[str, Path], tmp_path: Path, force: bool
+) -> None:
+    source = shutil.copytree(exported["folder"], tmp_path / "SRC")
+    before = _snapshot(source)
+    argv = ["import", "folder", str(source / "images"), "--poses", str(source / "poses.csv")]
+    argv += ["--out", str(source), "--board", "hec_8qr", "--intrinsics", str(exported["camera"]), "--quiet"]
+    code, _, err = run_hec(argv + ["--force"] * force)
+    assert code == 2 and f"--out {source}: holds the source this command reads" in err, err
+    assert _snapshot(source) == before
+
+
+@pytest.mark.parametrize("layout", ["visp", "easy_handeye2"])
+def test_import_onto_its_own_source_is_refused(
+    exported: dict[str, Path], rendered_samples: Path, tmp_path: Path, layout: str
+) -> None:
+    if layout == "visp":
+        source = shutil.copytree(exported["visp"], tmp_path / "visp")
+    else:
+        source = Path(shutil.copy(rendered_samples, tmp_path / "cell.samples"))
+    before = source.read_bytes() if source.is_file() else _snapshot(source)
+    code, _, err = run_hec(
+        ["import", layout, str(source), "--out", str(source), "--force", "--board", "hec_8qr"]
+    )
+    assert code == 2 and f"--out {source}: is the source this command reads" in err, err
+    assert (source.read_bytes() if source.is_file() else _snapshot(source)) == before
+
+
+def test_import_force_never_replaces_a_folder_that_is_not_a_dataset(exported, tmp_path: Path) -> None:
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the user's own")
+    code, _, err = run_hec(_folder_import(exported, mine, "--force", "--no-check"))
+    assert code == 2 and f"{mine}: exists and is not a hec dataset; --force replaces only" in err, err
+    assert _snapshot(mine) == {"notes.txt": b"the user's own"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+
+
+def test_a_second_import_into_a_folder_being_written_is_refused(exported, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    holder = _writer_process(out)
+    try:
+        code, _, err = run_hec(_folder_import(exported, out, "--no-check"))
+        assert code == 2 and f"{out}: another hec run (process {holder.pid}) is writing it now" in err, err
+        assert not out.exists()
+    finally:
+        holder.communicate("finish\n")
+    assert holder.returncode == 0 and _frame_count(out) == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["ds"]
+
+
+def test_a_dataset_that_appears_while_a_run_writes_is_kept(tmp_path: Path) -> None:
+    """The first of two runs to finish keeps its dataset; the second fails and writes nothing."""
+    out = tmp_path / "ds"
+    with DatasetWriter(out, None, None, 0.001, "import") as writer:
+        writer.add_pose(np.eye(4), 0.0)
+        holder = _writer_process(tmp_path / "other")
+        holder.communicate("finish\n")
+        (tmp_path / "other").rename(out)
+        with pytest.raises(FileExistsError, match="appeared while this run wrote it"):
+            writer.finish()
+    assert _frame_count(out) == 1 and [p.name for p in tmp_path.iterdir()] == ["ds"]
+
+
+def test_the_leftover_of_a_killed_import_is_removed_by_the_next(exported, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    holder = _writer_process(out)
+    holder.kill()
+    holder.communicate()
+    assert len(list(tmp_path.glob(".ds.partial-*"))) == 1
+    code, _, err = run_hec(_folder_import(exported, out, "--no-check"))
+    assert code == 0, err
+    assert [p.name for p in tmp_path.iterdir()] == ["ds"] and len(load_dataset(out)) == 17
+
+
+def test_an_import_whose_check_fails_leaves_nothing_and_the_rerun_works(exported, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    code, _, err = run_hec(_folder_import(exported, out, "--board", "chessboard_10x5"))
+    assert code == 2 and "too few frames: 0 usable of 17" in err, err
+    assert list(tmp_path.iterdir()) == []
+    code, stdout, err = run_hec(_folder_import(exported, out))
+    assert code == 0 and f"cached in {out / 'detections.json'}" in stdout, err
+    assert (out / "detections.json").is_file()
+
+
+def test_ctrl_c_during_an_import_leaves_nothing(exported, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hec.cli", *_folder_import(exported, out)],
+        cwd=REPO,
+        env=os.environ | {"PYTHONPATH": str(REPO)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    _wait_for(".ds.partial-*/dataset.json", tmp_path, process)  # written, now being checked
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130 and "interrupted" in err, err
+    assert list(tmp_path.iterdir()) == []

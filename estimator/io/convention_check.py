@@ -303,16 +303,32 @@ class PairReading:
     board_m: float = float("nan")
 
 
-def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, tracking_direction: str) -> str:
+@dataclass(frozen=True)
+class PairCheck:
+    """What check_pose_pair_directions found: its sentence, and whether the pairs fit as stated
+    (fits), fit another reading better (a mistake, to refuse) or cannot tell (cannot_check)."""
+
+    message: str
+    mistake: bool = False
+    cannot_check: bool = False
+
+
+def check_pose_pair_directions(
+    pairs: list[PosePair], robot_direction: str, tracking_direction: str
+) -> PairCheck:
     """Which reading of pose pairs fits: as stated (pairs read in robot_direction and
     tracking_direction), the robot poses inverted, the camera-to-target poses inverted, or both; in
     words, with the residual before and after (the board pose's RMS translation over the pairs at
-    Park's solution).
+    Park's solution). Robot motion that cannot tell the readings apart (no rotation, one axis, the
+    same pose throughout) is 'cannot check'.
 
     Inverting both fits exactly as well as not, with the roles swapped: the mount comes out as the
     board's pose in the base frame and the board's as the mount. So only readings that put the
     camera nearer the flange than the board is to the base are taken (a camera on a flange is not
     across the cell from it), unless none does."""
+    cannot = _degenerate_motion(np.array([p.T_base_flange for p in pairs]))
+    if cannot is not None:
+        return PairCheck(f"cannot check the pose pairs' directions: {cannot}", cannot_check=True)
     other_robot, other_tracking = _other(robot_direction), _swap(tracking_direction, *TRACKING_DIRECTIONS)
     readings = [
         ("", "", False, False),
@@ -332,6 +348,12 @@ def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, trac
     ]
     trials = [_pair_reading(pairs, m, o, a, z) for m, o, a, z in readings]
     stated = trials[0]
+    if not any(np.isfinite(t.residual_m) for t in trials):
+        return PairCheck(
+            "cannot check the pose pairs' directions: Park finds no solution in any reading (poses that "
+            "repeat, or too few)",
+            cannot_check=True,
+        )
     best = min([t for t in trials if t.mount_m < t.board_m] or trials, key=lambda t: t.residual_m)
     if best is not stated and best.residual_m < MISTAKE_RATIO * stated.residual_m:
         after = f"{1e3 * best.residual_m:.3g} mm"
@@ -340,16 +362,19 @@ def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, trac
             if not np.isfinite(stated.residual_m)
             else f"the board pose's spread drops from {1e3 * stated.residual_m:.3g} mm to {after}"
         )
-        return f"the pose pairs look like {best.mistake}: {change}; pass {best.option}"
+        return PairCheck(
+            f"the pose pairs look like {best.mistake}: {change}; pass {best.option}", mistake=True
+        )
     if best is not stated and not stated.mount_m < stated.board_m:
-        return (
+        return PairCheck(
             f"the pose pairs look like {best.mistake}: they fit as well either way (board pose spread "
             f"{1e3 * stated.residual_m:.3g} mm as stated, {1e3 * best.residual_m:.3g} mm read so), but as "
             f"stated the camera sits {stated.mount_m:.2f} m from the flange and the board "
             f"{stated.board_m:.2f} m from the base, read so {best.mount_m:.2f} m and {best.board_m:.2f} m; "
-            f"pass {best.option}"
+            f"pass {best.option}",
+            mistake=True,
         )
-    return (
+    return PairCheck(
         f"the pose pairs fit the stated directions (the board pose's spread {1e3 * stated.residual_m:.3g} mm "
         "RMS); none of the common mistakes fits better"
     )

@@ -6,6 +6,7 @@ hec version and the time of the import."""
 from __future__ import annotations
 
 import datetime
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -61,9 +62,11 @@ def import_images(
     record: dict,
     extra: dict | None = None,
     force: bool = False,
+    check: Callable[[Path], None] | None = None,
 ) -> Path:
     """Write the layout's images, depths and poses as a hec dataset at out (nothing appears there
-    unless it completes). record: the provenance; extra: more dataset.json fields (robot_model)."""
+    unless it completes). record: the provenance; extra: more dataset.json fields (robot_model);
+    check: run on the complete dataset before it is moved to out (its failure leaves nothing)."""
     T_base_flange = frames.T_base_flange
     # PNG depths are stored as they came; .npy depths (often float metres) in steps of 0.1 mm, which
     # hold 6.5 m (farther pixels are stored as no depth).
@@ -81,7 +84,7 @@ def import_images(
                     time_s=float(i),
                 )
             )
-        return writer.finish(extra={"provenance": record, **(extra or {})})
+        return writer.finish(extra={"provenance": record, **(extra or {})}, check=check)
 
 
 def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
