@@ -19,6 +19,9 @@ import numpy as np
 import pytest
 
 from hec.estimator.io.dataset import DatasetWriter, load_dataset
+from hec.estimator.io.lock import LOCK_FILE
+from hec.sweep.rows import load_rows
+from hec.sweep.runner import same_rows
 from tests.hec_cli import run_hec
 from tests.test_export import _calibration_file
 from tests.test_fault_pass import REPO, _wait_for
@@ -292,3 +295,70 @@ def test_ctrl_c_during_an_import_leaves_nothing(exported, tmp_path: Path) -> Non
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130 and "interrupted" in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+# --- sweep: a run and its --resume never share the folder -----------------------------------------
+
+TINY_SWEEP = """
+fidelity = "measurements"
+seed = 5
+trials = 2
+methods = ["opencv-park"]
+
+[fixed]
+mount = "random"
+waypoints = 6
+"""
+HOLD_LOCK = """
+import sys
+from hec.estimator.io.lock import acquire_lock
+acquire_lock(sys.argv[1], "a sweep")
+print("locked", flush=True)
+sys.stdin.readline()
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny_sweep(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A finished two-trial sweep: its config file and folder."""
+    root = tmp_path_factory.mktemp("sweep")
+    (root / "tiny.toml").write_text(TINY_SWEEP)
+    code, _, err = run_hec(
+        ["sweep", str(root / "tiny.toml"), "--out", str(root / "out"), "--workers", "1", "--quiet"]
+    )
+    assert code == 0, err
+    return root / "tiny.toml", root / "out"
+
+
+def test_a_finished_sweep_leaves_no_lock(tiny_sweep: tuple[Path, Path]) -> None:
+    _, out = tiny_sweep
+    assert not (out / LOCK_FILE).exists() and (out / "rows.csv").is_file()
+
+
+@pytest.mark.parametrize("resume", [True, False])
+def test_a_sweep_into_a_folder_another_sweep_holds_is_refused(
+    tiny_sweep: tuple[Path, Path], tmp_path: Path, resume: bool
+) -> None:
+    config, finished = tiny_sweep
+    out = shutil.copytree(finished, tmp_path / "out") if resume else tmp_path / "out"
+    out.mkdir(exist_ok=True)
+    before = _snapshot(out)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD_LOCK, str(out)],
+        cwd=REPO,
+        env=os.environ | {"PYTHONPATH": str(REPO)},
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        argv = ["sweep", str(config), "--out", str(out), "--workers", "1", "--quiet"] + ["--resume"] * resume
+        code, _, err = run_hec(argv)
+        assert code == 2 and f"a sweep is in progress there (process {holder.pid}" in err, err
+        assert {k: v for k, v in _snapshot(out).items() if k != LOCK_FILE} == before
+    finally:
+        holder.communicate("\n")
+    code, _, err = run_hec(["sweep", str(config), "--out", str(out), "--workers", "1", "--quiet", "--resume"])
+    assert code == 0 and not (out / LOCK_FILE).exists(), err
+    assert not same_rows(load_rows(out), load_rows(finished))  # every trial once, as the first run's
