@@ -95,9 +95,10 @@ def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np.ndarray:
+def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np.ndarray | None:
     """(H, W) float32 metres of a 16-bit depth PNG or a numpy .npy depth image (integers or floats,
-    either times depth_scale_m), 0 where there is no depth."""
+    either times depth_scale_m), 0 where there is no depth; None when no pixel has depth (the frame
+    is imported without depth, as it is)."""
     if path.suffix.lower() == ".npy":
         try:
             raw = np.load(path, allow_pickle=False)
@@ -116,7 +117,7 @@ def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np
         _check_size(path, raw, intrinsics)
         depth_m = decode_depth(raw, depth_scale_m)
     _check_depth_range(path, depth_m, depth_scale_m)
-    return depth_m
+    return depth_m if depth_m.any() else None
 
 
 def _check_depth_range(path: Path, depth_m: np.ndarray, depth_scale_m: float) -> None:

@@ -219,7 +219,10 @@ def run(args: argparse.Namespace) -> int:
     print(frames.pairing.describe())
     for note in frames.notes:
         print(f"note: {note}")
-    depth = sum(d is not None for d in frames.depths)
+    depth = sum(bool(row["depth"]) for row in load_dataset(out).rows)
+    empty = sum(d is not None for d in frames.depths) - depth
+    if empty:
+        print(f"note: {empty} depth images hold no depth (every pixel 0): those frames are imported without")
     joints = "" if frames.joints is None else f", {frames.joints.shape[1]} joints each,"
     poses = (
         f"flange poses computed from the joints with {arm.name}'s kinematics"
