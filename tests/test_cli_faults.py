@@ -290,9 +290,7 @@ def test_a_filter_result_far_off_its_observations_is_warned_of() -> None:
     problem = build_problem(observations, BOARD, wrong, noise.robot)
     result = run_method("seed-ekf", problem, MethodOptions(learn_noise=False), observations)
     assert result.residual_rms_px > 20
-    assert any(
-        "seed-ekf's result does not fit the observations (RMS residual 22 px)" in w for w in result.warnings
-    )
+    assert any("seed-ekf's result does not fit its data: RMS residual 22.2 px" in w for w in result.warnings)
 
 
 def test_calibrate_on_a_read_only_dataset_detects_without_caching(

@@ -15,7 +15,6 @@ import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -23,7 +22,7 @@ from hec.estimator.io.dataset import DatasetWriter, load_dataset
 from hec.estimator.io.lock import LOCK_FILE
 from hec.sweep.rows import load_rows
 from hec.sweep.runner import same_rows
-from tests.hec_cli import run_hec, scenario_file
+from tests.hec_cli import run_hec
 from tests.test_export import _calibration_file
 from tests.test_fault_pass import REPO, _wait_for
 from tests.test_import import FLANGE_TO_BASE, FOLDER_OPTIONS, _import, exported, rendered_samples
@@ -363,91 +362,3 @@ def test_a_sweep_into_a_folder_another_sweep_holds_is_refused(
     code, _, err = run_hec(["sweep", str(config), "--out", str(out), "--workers", "1", "--quiet", "--resume"])
     assert code == 0 and not (out / LOCK_FILE).exists(), err
     assert not same_rows(load_rows(out), load_rows(finished))  # every trial once, as the first run's
-
-
-# --- board, plan, depth and files that are not what they say --------------------------------------
-
-
-@pytest.mark.parametrize(
-    ("size", "said"), [([10, 10], "no printer takes a sheet over 2 m"), ([1e6, 1e6], "no printer takes")]
-)
-def test_a_board_of_absurd_size_is_refused_before_its_sheet_is_drawn(
-    tmp_path: Path, size: list, said: str
-) -> None:
-    board = json.loads((REPO / "models" / "boards" / "hec_8qr.json").read_text()) | {"size_m": size}
-    (tmp_path / "big.json").write_text(json.dumps(board))
-    code, _, err = run_hec(["board", "--board", str(tmp_path / "big.json"), "--out", str(tmp_path / "s.png")])
-    assert code == 2 and f"is {size[0]:g} x {size[1]:g} m (its size_m): {said}" in err, err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.json"]
-
-
-def test_a_sheet_too_many_pixels_at_its_dpi_names_the_dpi_that_fits(tmp_path: Path) -> None:
-    board = json.loads((REPO / "models" / "boards" / "hec_8qr.json").read_text()) | {"size_m": [1.9, 1.9]}
-    (tmp_path / "a0.json").write_text(json.dumps(board))
-    argv = ["board", "--board", str(tmp_path / "a0.json"), "--out", str(tmp_path / "s.png"), "--dpi", "2400"]
-    code, _, err = run_hec(argv)
-    assert code == 2 and "at 2400 dpi its sheet is 32.2 gigapixels; give --dpi 423 or less" in err, err
-
-
-def test_plan_says_why_it_writes_fewer_views_than_asked(tmp_path: Path) -> None:
-    code, out, err = run_hec(
-        ["plan", "--views", "60", "--candidates", "60", "--out", str(tmp_path / "w.csv")]
-    )
-    assert code == 0, err
-    written = int(out.rsplit("wrote ", 1)[1].split(": ")[1].split()[0])
-    assert written < 60 and f"note: {written} views, not the 60 asked: only " in out
-    assert "give more --candidates for more" in out
-
-
-@pytest.mark.parametrize("option", ["--calibration", "--scenario"])
-def test_plan_never_writes_over_its_inputs(tmp_path: Path, option: str) -> None:
-    source = _calibration_file(tmp_path) if option == "--calibration" else scenario_file(tmp_path)
-    before = source.read_bytes()
-    code, _, err = run_hec(["plan", option, str(source), "--out", str(source), "--views", "4"])
-    assert code == 2 and f"--out {source}: is the {option[2:]} file this command reads" in err, err
-    assert source.read_bytes() == before
-
-
-def test_depth_images_of_zeros_count_as_no_depth(default_dataset: Path, exported, tmp_path: Path) -> None:
-    depth = shutil.copytree(default_dataset / "depth", tmp_path / "depth")
-    for name in ("000003.png", "000007.png"):
-        cv2.imwrite(str(depth / name), np.zeros((480, 640), np.uint16))
-    code, out, err = run_hec(_folder_import(exported, tmp_path / "ds", "--depth", str(depth), "--no-check"))
-    assert code == 0, err
-    assert "note: 2 depth images hold no depth (every pixel 0)" in out and "(15 with depth)" in out
-    assert [bool(r["depth"]) for r in load_dataset(tmp_path / "ds").rows].count(False) == 2
-
-
-@pytest.mark.parametrize(("field", "axis"), [("translation", "x"), ("rotation", "w")])
-def test_a_nan_in_an_easy_handeye2_sample_is_named_as_a_nan(
-    rendered_samples: Path, tmp_path: Path, field: str, axis: str
-) -> None:
-    import yaml
-
-    data = yaml.safe_load(rendered_samples.read_text())
-    data["samples"][2]["tracking"][field][axis] = float("nan")
-    (tmp_path / "nan.samples").write_text(yaml.safe_dump(data))
-    code, _, err = run_hec(
-        ["import", "easy_handeye2", str(tmp_path / "nan.samples"), "--out", str(tmp_path / "o")]
-    )
-    assert code == 2 and "samples[2].tracking: translation and rotation must be finite numbers" in err, err
-    assert not (tmp_path / "o").exists()
-
-
-@pytest.mark.parametrize("name", ["pose_fPe_2.yaml", "image-4.png"])
-def test_a_visp_file_of_random_bytes_is_named(exported, tmp_path: Path, name: str) -> None:
-    visp = shutil.copytree(exported["visp"], tmp_path / "visp")
-    (visp / name).write_bytes(np.random.default_rng(1).bytes(300))
-    argv = _import(exported, tmp_path / "o", "visp", "--no-check")
-    code, _, err = run_hec([*argv[:2], str(visp), *argv[3:]])
-    assert code == 2 and f"{visp / name}: not a" in err and len(err.strip().splitlines()) == 1, err
-    assert not (tmp_path / "o").exists()
-
-
-def test_a_visp_image_renamed_by_a_file_manager_keeps_its_number(exported, tmp_path: Path) -> None:
-    visp = shutil.copytree(exported["visp"], tmp_path / "visp")
-    (visp / "image-3.png").rename(visp / "image-3 (copy).png")
-    argv = _import(exported, tmp_path / "o", "visp", "--no-check")
-    code, out, err = run_hec([*argv[:2], str(visp), *argv[3:]])
-    assert code == 0 and "imported 17 images" in out, err
-    assert "image-3 (copy).png" in load_dataset(tmp_path / "o").metadata["provenance"]["images"][2]

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -31,7 +30,7 @@ from hec.estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFile
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import opencv_calibrate
 from hec.estimator.solve.calibration import MethodOptions
-from hec.estimator.solve.initialise import board_pose_pnp
+from hec.estimator.solve.misfit import board_residual_px, data_noise_px
 from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
@@ -208,25 +207,6 @@ def check_pose_convention(
         and best.residual_px <= NOISE_RATIO * noise
     )
     return ConventionReport(stated_trial, others, best if named else None, noise)
-
-
-def data_noise_px(problem: CalibrationProblem) -> float:
-    """The RMS pixel residual the data's noise alone leaves (pixels): each frame's own board pose
-    (PnP) residual, with the declared robot pose noise seen at the board's distance added in
-    quadrature (focal length x (translation sigma / distance + rotation sigma))."""
-    corners = _board_residual_px(problem, np.ones(3))
-    focal = float(np.mean(np.diag(problem.intrinsics.K)[:2]))
-    distance = float(np.median([_board_distance_m(problem, f) for f in problem.frames]))
-    noise = problem.robot_noise
-    robot = focal * (noise.translation_sigma_m / max(distance, 1e-3) + noise.rotation_sigma_rad)
-    return float(np.hypot(corners, robot))
-
-
-def _board_distance_m(problem: CalibrationProblem, frame) -> float:
-    try:
-        return float(np.linalg.norm(board_pose_pnp(problem, frame)[:3, 3]))
-    except CalibrationInputError:
-        return float("nan")
 
 
 def _degenerate_motion(T_base_flange: np.ndarray) -> str | None:
@@ -408,12 +388,12 @@ def check_board_layout(problem: CalibrationProblem) -> str:
     with the RMS pixel residual of each frame's board pose (PnP) before and after. A board of
     one-point markers mirrored is the same points seen from behind, a rigid change the board pose
     absorbs: nothing to name."""
-    stated = _board_residual_px(problem, np.ones(3))
+    stated = board_residual_px(problem, np.ones(3))
     readings = [
         ("left to right (x)", np.array([-1.0, 1.0, 1.0])),
         ("top to bottom (y)", np.array([1.0, -1.0, 1.0])),
     ]
-    words, residual = min(((w, _board_residual_px(problem, m)) for w, m in readings), key=lambda t: t[1])
+    words, residual = min(((w, board_residual_px(problem, m)) for w, m in readings), key=lambda t: t[1])
     if residual < MISTAKE_RATIO * stated:
         return (
             f"the board file's marker layout looks mirrored {words}: the residual of the board poses drops "
@@ -421,23 +401,3 @@ def check_board_layout(problem: CalibrationProblem) -> str:
             "board file's marker centres"
         )
     return f"the board file's layout fits the images ({stated:.2g} px RMS residual of the board poses)"
-
-
-def _board_residual_px(problem: CalibrationProblem, mirror: np.ndarray) -> float:
-    """RMS pixel residual of each frame's PnP board pose, the markers' centres scaled by mirror (3,)."""
-    K, dist = problem.intrinsics.K, np.array(problem.intrinsics.dist, dtype=np.float64)
-    squared, count = 0.0, 0
-    for frame in problem.frames:
-        points = []
-        for m in frame.markers:
-            center = m.corners_board.mean(axis=0)
-            points.append(m.corners_board - center + mirror * center)
-        object_points = np.concatenate(points)
-        image_points = np.concatenate([m.corners_px for m in frame.markers])
-        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, K, dist, flags=cv2.SOLVEPNP_SQPNP)
-        if not ok:
-            return float("inf")
-        projected = cv2.projectPoints(object_points, rvec, tvec, K, dist)[0].reshape(-1, 2)
-        squared += float(np.sum((projected - image_points) ** 2))
-        count += len(image_points)
-    return float(np.sqrt(squared / max(count, 1)))

@@ -128,6 +128,12 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
         why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
     else:
         why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
+    from hec.estimator.solve.misfit import disagreeing_frames
+
+    frames = ", ".join(
+        f"frame {f} ({1e3 * m:.0f} mm)" for f, m in disagreeing_frames(problem, park.T_flange_cam)
+    )
+    why += f"; the frames that disagree most, by how far from the others each puts the board: {frames}"
     raise CalibrationInputError(
         "the robot poses do not fit the images at any mount (the best closed-form mount leaves "
         f"{px_text(park.residual_rms_px)} RMS, {MAX_CORNER_RMS_PX:.0f} px is the most any model explains); "
