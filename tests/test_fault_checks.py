@@ -198,3 +198,13 @@ def test_the_library_names_the_frame_that_disagrees_in_a_result_that_does_not_fi
     assert "puts the board: frame 5 (" in misfit
     right = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
     assert "misfit" not in run_method("opencv-tsai", right, MethodOptions(), observations).diagnostics
+
+
+def test_the_board_check_never_says_fits_at_many_times_the_corners_noise(exported, tmp_path: Path) -> None:
+    """A camera 13 % off (fx 700 for 617): the board poses leave 50 times the normal residual."""
+    argv = _folder_import(exported, tmp_path / "ds", "--camera", "700", "700", "320", "240", "640", "480")
+    code, out, err = run_hec([a for a in argv if a not in ("--intrinsics", str(exported["camera"]))])
+    assert code == 0, err
+    board = out.split("board check: ")[1]
+    assert "fits" not in board.split(";")[0] and "times the corners' noise" in board, out
+    assert "intrinsics or lens model" in board

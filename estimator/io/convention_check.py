@@ -30,7 +30,7 @@ from hec.estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFile
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import opencv_calibrate
 from hec.estimator.solve.calibration import MethodOptions
-from hec.estimator.solve.misfit import board_residual_px, data_noise_px
+from hec.estimator.solve.misfit import board_residual_px, data_noise_px, declared_corner_sigma_px
 from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
@@ -387,7 +387,8 @@ def check_board_layout(problem: CalibrationProblem) -> str:
     points kept, as a board file written in a frame with x or y the other way would be); in words,
     with the RMS pixel residual of each frame's board pose (PnP) before and after. A board of
     one-point markers mirrored is the same points seen from behind, a rigid change the board pose
-    absorbs: nothing to name."""
+    absorbs: nothing to name. A residual far above the corners' declared noise that no mirroring
+    removes is named as such (the camera model, not the layout)."""
     stated = board_residual_px(problem, np.ones(3))
     readings = [
         ("left to right (x)", np.array([-1.0, 1.0, 1.0])),
@@ -399,5 +400,13 @@ def check_board_layout(problem: CalibrationProblem) -> str:
             f"the board file's marker layout looks mirrored {words}: the residual of the board poses drops "
             f"from {stated:.3g} px to {residual:.3g} px with the markers' centres reflected; correct the "
             "board file's marker centres"
+        )
+    sigma = declared_corner_sigma_px(problem)
+    if stated > NOISE_RATIO * sigma:
+        return (
+            f"the board poses leave {stated:.2g} px RMS, {stated / sigma:.0f} times the corners' noise "
+            f"({sigma:.2g} px), and no better mirrored: the board file's layout is not the cause, but the "
+            "intrinsics or lens model (or a board that is not flat) do not match the images; check the "
+            "camera's calibration"
         )
     return f"the board file's layout fits the images ({stated:.2g} px RMS residual of the board poses)"

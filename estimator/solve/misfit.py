@@ -59,6 +59,16 @@ def board_residual_px(problem: CalibrationProblem, mirror: np.ndarray) -> float:
     return float(np.sqrt(squared / max(count, 1)))
 
 
+def declared_corner_sigma_px(problem: CalibrationProblem) -> float:
+    """The RMS 1-sigma of a corner's pixel position the problem's noise model declares (pixels)."""
+    variances = []
+    for frame in problem.frames:
+        for m in frame.markers:
+            W = m.whitening[: m.pixel_rows, : 2 * len(m.corners_px)]
+            variances.append(np.mean(np.diag(np.linalg.pinv(W.T @ W))))
+    return float(np.sqrt(np.mean(variances))) if variances else float("nan")
+
+
 def disagreeing_frames(problem: CalibrationProblem, T_flange_cam: np.ndarray) -> list[tuple[int, float]]:
     """(frame, metres) of the FRAMES_NAMED frames that put the board farthest from the median of
     where the frames put it in the base frame (T_base_flange @ T_flange_cam @ its PnP board pose)."""
