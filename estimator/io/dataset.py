@@ -69,7 +69,22 @@ def frame_columns(joint_count: int = UR_JOINTS) -> tuple[str, ...]:
 
 
 FRAME_COLUMNS = frame_columns()
+# The files of a dataset folder that hec reads (an output never replaces one).
+DATASET_FILES = (
+    "dataset.json",
+    "frames.csv",
+    "board.json",
+    "ground_truth.json",
+    "pose_pairs.json",
+    "detections.json",
+)
 SESSION_COLUMNS = ("waypoint", "depth_samples")
+
+
+def dataset_inputs(folder: str | Path) -> dict[str, Path]:
+    """The files of the dataset at folder that hec reads and that exist, each named for a message
+    ("dataset's frames.csv")."""
+    return {f"dataset's {n}": Path(folder) / n for n in DATASET_FILES if (Path(folder) / n).is_file()}
 
 
 def _matrix(T: np.ndarray) -> list[list[float]]:

@@ -283,7 +283,10 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
         fx, fy, cx, cy, width, height = args.camera
         if width != int(width) or height != int(height):
             raise ValueError(f"--camera: WIDTH and HEIGHT are whole pixels, got {width:g} {height:g}")
-        return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
+        try:
+            return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
+        except ValueError as exc:
+            raise ValueError(f"--camera: {exc}") from None
     if required:
         raise ValueError("the camera is needed to import images: give --intrinsics FILE or --camera")
     return None

@@ -347,12 +347,12 @@ def _run_sweep(
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     try:
-        note = acquire_lock(out_dir, "a sweep")
-    except FolderLockedError as exc:
-        raise SweepError(str(exc)) from None
-    if note is not None:
-        print(f"note: {note}", file=sys.stderr)
-    try:
+        try:
+            note = acquire_lock(out_dir, "a sweep")
+        except FolderLockedError as exc:
+            raise SweepError(str(exc)) from None
+        if note is not None:
+            print(f"note: {note}", file=sys.stderr)
         return _run_locked(config, out_dir, client, workers, resume, keep_datasets, progress)
     finally:
         release_lock(out_dir)
