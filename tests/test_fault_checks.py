@@ -120,13 +120,46 @@ def test_a_frame_paired_with_another_frames_image_is_named_by_every_method(
     ds = shutil.copytree(default_dataset, tmp_path / "ds")
     (ds / "detections.json").unlink(missing_ok=True)
     lines = (ds / "frames.csv").read_text().splitlines()
-    cells = lines[6].split(",")  # frame 5 shows frame 9's images
-    cells[2], cells[3] = "rgb/000009.png", "depth/000009.png"
-    lines[6] = ",".join(cells)
+    five, nine = lines[6].split(","), lines[10].split(",")  # frames 5 and 9 show each other's images
+    five[2:4], nine[2:4] = nine[2:4], five[2:4]
+    lines[6], lines[10] = ",".join(five), ",".join(nine)
     (ds / "frames.csv").write_text("\n".join(lines) + "\n")
     code, out, err = run_hec(["calibrate", str(ds), "--method", method, "--quiet", "--no-loo", "--verbose"])
     assert code == 2 and "the robot poses do not fit the images at any mount" in err, err
-    assert "the frames that disagree most, by how far from the others each puts the board: frame 5 (" in err
+    named = err.split("the frames that disagree most, by how far from the others each puts the board: ")[1]
+    assert {int(x.split()[0]) for x in named.split("frame ")[1:3]} == {5, 9}, err
+
+
+@pytest.mark.parametrize("row", [6, 10])
+def test_a_frames_csv_row_naming_another_frames_image_is_refused_naming_both(
+    default_dataset: Path, tmp_path: Path, row: int
+) -> None:
+    """Frame 5 pointed at frame 9's picture, or frame 9's row written again as frame 9's."""
+    ds = shutil.copytree(default_dataset, tmp_path / "ds")
+    lines = (ds / "frames.csv").read_text().splitlines()
+    cells = lines[row].split(",")
+    other = lines[10 if row == 6 else 6].split(",")
+    cells[2] = other[2]
+    lines[row] = ",".join(cells)
+    (ds / "frames.csv").write_text("\n".join(lines) + "\n")
+    code, _, err = run_hec(["calibrate", str(ds), "--quiet", "--no-loo"])
+    assert (
+        code == 2 and f"{ds / 'frames.csv'}: frames 5 and 9 both name {other[2]} (lines 7 and 11)" in err
+    ), err
+
+
+def test_an_image_imported_twice_under_two_names_is_refused(exported, tmp_path: Path) -> None:
+    folder = shutil.copytree(exported["folder"], tmp_path / "folder")
+    shutil.copy(folder / "images" / "000003.png", folder / "images" / "000017.png")
+    lines = (folder / "poses.csv").read_text().splitlines()
+    (folder / "poses.csv").write_text("\n".join([*lines, "000017.png," + lines[4].split(",", 1)[1]]) + "\n")
+    argv = _folder_import(exported, tmp_path / "o", "--no-check")
+    argv = [a.replace(str(exported["folder"]), str(folder)) for a in argv]
+    code, _, err = run_hec(argv)
+    assert (
+        code == 2 and f"{folder / 'images' / '000017.png'} and {folder / 'images' / '000003.png'}" in err
+    ), err
+    assert "the same picture" in err and not (tmp_path / "o").exists()
 
 
 @pytest.fixture(scope="module")

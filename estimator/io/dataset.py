@@ -378,4 +378,23 @@ def read_frames(path: Path) -> list[dict]:
                 )
             except (TypeError, ValueError) as exc:
                 raise DatasetError(f"{path}: line {line}: bad value ({exc})") from None
+    _refuse_shared_images(path, rows)
     return rows
+
+
+def _refuse_shared_images(path: Path, rows: list[dict]) -> None:
+    """DatasetError when two frames name one image (a row pointing at another frame's picture, or a
+    row written twice): each frame's image is its own."""
+    seen: dict[str, int] = {}
+    for row in rows:
+        for column in ("rgb", "depth"):
+            name = row[column]
+            if not name:
+                continue
+            if name in seen:
+                raise DatasetError(
+                    f"{path}: frames {seen[name]} and {row['frame']} both name {name} (lines "
+                    f"{seen[name] + 2} and {row['frame'] + 2}); each frame has its own image: correct the "
+                    f"{column} of the wrong one"
+                )
+            seen[name] = row["frame"]

@@ -6,6 +6,7 @@ hec version and the time of the import."""
 from __future__ import annotations
 
 import datetime
+import hashlib
 from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -67,6 +68,7 @@ def import_images(
     """Write the layout's images, depths and poses as a hec dataset at out (nothing appears there
     unless it completes). record: the provenance; extra: more dataset.json fields (robot_model);
     check: run on the complete dataset before it is moved to out (its failure leaves nothing)."""
+    _refuse_repeated_images(frames.images)
     T_base_flange = frames.T_base_flange
     # PNG depths are stored as they came; .npy depths (often float metres) in steps of 0.1 mm, which
     # hold 6.5 m (farther pixels are stored as no depth).
@@ -85,6 +87,20 @@ def import_images(
                 )
             )
         return writer.finish(extra={"provenance": record, **(extra or {})}, check=check)
+
+
+def _refuse_repeated_images(images: list[Path]) -> None:
+    """LayoutError naming two image files that are one picture (a copy): a view imported twice
+    counts twice and makes the calibration look surer than it is."""
+    seen: dict[str, Path] = {}
+    for path in images:
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        if digest in seen:
+            raise LayoutError(
+                f"{path} and {seen[digest]}: the same picture (identical files); a view is imported once: "
+                "remove the copy and its pose"
+            )
+        seen[digest] = path
 
 
 def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
