@@ -241,3 +241,47 @@ def test_the_board_check_never_says_fits_at_many_times_the_corners_noise(exporte
     board = out.split("board check: ")[1]
     assert "fits" not in board.split(";")[0] and "times the corners' noise" in board, out
     assert "intrinsics or lens model" in board
+
+
+# --- pose files as spreadsheets write them -------------------------------------------------------
+
+
+def _with_poses(argv: list[str], poses: Path) -> list[str]:
+    """argv with its --poses file replaced by poses."""
+    at = argv.index("--poses") + 1
+    return [*argv[:at], str(poses), *argv[at + 1 :]]
+
+
+def _spreadsheet(text: str, kind: str) -> bytes:
+    lines = text.splitlines()
+    if kind == "no header":
+        return ("\n".join(lines[1:]) + "\n").encode()
+    if kind == "semicolons":
+        return ("\n".join(line.replace(",", ";") for line in lines) + "\n").encode()
+    if kind == "tabs":
+        return ("\n".join(line.replace(",", "\t") for line in lines) + "\n").encode()
+    return ("\ufeff" + "\r\n".join(lines) + "\r\n").encode()  # Excel's UTF-8 CSV: a BOM and CRLF
+
+
+@pytest.mark.parametrize("kind", ["no header", "semicolons", "tabs", "BOM and CRLF"])
+def test_a_pose_file_as_a_spreadsheet_writes_it_reads_the_same_poses(
+    exported, tmp_path: Path, kind: str
+) -> None:
+    poses = tmp_path / "poses.csv"
+    poses.write_bytes(_spreadsheet((exported["folder"] / "poses.csv").read_text(), kind))
+    code, _, err = run_hec(_folder_import(exported, tmp_path / "ref", "--no-check"))
+    assert code == 0, err
+    code, _, err = run_hec(_with_poses(_folder_import(exported, tmp_path / "o", "--no-check"), poses))
+    assert code == 0, err
+    ref, got = (load_dataset(tmp_path / d).metadata["provenance"]["pose_values"] for d in ("ref", "o"))
+    assert np.array_equal(ref, got)
+
+
+def test_a_pose_file_listing_one_image_twice_is_refused(exported, tmp_path: Path) -> None:
+    lines = (exported["folder"] / "poses.csv").read_text().splitlines()
+    (tmp_path / "poses.csv").write_text("\n".join([*lines, lines[3]]) + "\n")
+    argv = _with_poses(_folder_import(exported, tmp_path / "o", "--no-check"), tmp_path / "poses.csv")
+    code, _, err = run_hec(argv)
+    name = lines[3].split(",")[0]
+    assert code == 2 and f"image '{name}' is listed twice (line 4 and line 19)" in err, err
+    assert not (tmp_path / "o").exists()

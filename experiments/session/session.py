@@ -16,6 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
+from hec.estimator.common.files import os_error_text
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
 from hec.estimator.io.dataset import load_dataset
@@ -217,7 +218,7 @@ def run_session(
             outcome.recorded += 1
             say(f"{head}: frame {index}" + (f" | {live.add(index, capture.frame)}" if live else ""))
     except SESSION_STOPS as exc:
-        outcome.stopped = str(exc)
+        outcome.stopped = os_error_text(exc) if isinstance(exc, OSError) else str(exc)
         if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or SIGTERM/SIGHUP ("stopped by SIGTERM")
             outcome.stopped = str(exc) or "stopped by Ctrl-C"
     outcome.total = len(recorder.rows)
