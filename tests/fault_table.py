@@ -3,8 +3,8 @@ class: clear (a one-line refusal naming the file or option), handled (the comman
 thing), vague (a refusal that names nothing, or Python's own [Errno N] words), traceback, silent
 (exit 0 where it had to refuse), lost (an input changed) or left behind (a file the failed run made).
 
-The cases live in tests/fault_cases.py; tests/test_fault_table.py runs each as a test, and
-`python -m tests.fault_table` runs them all and prints the count per class."""
+The cases live in tests/fault_cases.py and tests/fault_cases_runs.py; tests/test_fault_table.py
+runs each as a test, and `python -m tests.fault_table` runs them all and prints the count per class."""
 
 from __future__ import annotations
 
@@ -36,6 +36,29 @@ class Case:
     name: str
     build: Build
     fs: str | None = None
+    holder: str | None = None  # Python run as a process (argv: the work folder) while the case runs
+
+
+@contextlib.contextmanager
+def holding(code: str | None, work: Path) -> Iterator[None]:
+    """With code, a real process running it (given work) until the case is done: it prints 'ready'
+    once it holds what it holds, then waits for its stdin to close (no timing involved)."""
+    if code is None:
+        yield
+        return
+    root = Path(__file__).resolve().parent.parent
+    process = subprocess.Popen(
+        [sys.executable, "-c", code, str(work)],
+        cwd=root,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout.readline().strip() == "ready"
+        yield
+    finally:
+        process.communicate("\n")
 
 
 def _digest(folder: Path) -> dict[str, str]:
@@ -67,25 +90,32 @@ def work_folder(where: Path, fs: str | None) -> Iterator[Path]:
         subprocess.run(["umount", str(where)], check=True)
 
 
+def _run(argv: list[str]) -> tuple[int, str, str]:
+    """hec argv in this process: exit code, stdout, stderr (argparse's refusals too). A traceback
+    escapes as the exception it is."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = hec_main(argv)
+        except SystemExit as exc:  # argparse's own refusal (hec VERB: error: ...)
+            code = int(exc.code or 0)
+    return code, out.getvalue(), err.getvalue()
+
+
 def run_case(case: Case, inputs: dict[str, Path], where: Path) -> tuple[str, str]:
     """Run one case in the folder where (made here): its class and what the command printed."""
     with work_folder(where, case.fs) as work:
         argv, words = case.build(inputs, work)
-        before_inputs, before_work = _digest(inputs["root"]), _digest(work)
-        out, err = io.StringIO(), io.StringIO()
-        try:
-            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-                try:
-                    code = hec_main(argv)
-                except SystemExit as exc:  # argparse's own refusal (hec VERB: error: ...)
-                    code = int(exc.code or 0)
-        except BaseException:  # noqa: BLE001 - a traceback is what this class records
-            return "traceback", traceback.format_exc()
-        out, err = out.getvalue(), err.getvalue()
+        with holding(case.holder, work):
+            before_inputs, before_work = _digest(inputs["root"]), _digest(work)
+            try:
+                code, out, err = _run(argv)
+            except BaseException:  # noqa: BLE001 - a traceback is what this class records
+                return "traceback", traceback.format_exc()
+            after_work = _digest(work)
         text = f"exit {code}\n{out}{err}"
         if "Traceback (most recent call last)" in err:
             return "traceback", text
-        after_work = _digest(work)
         if _digest(inputs["root"]) != before_inputs or any(
             after_work.get(k) != v for k, v in before_work.items()
         ):
@@ -108,7 +138,8 @@ def run_case(case: Case, inputs: dict[str, Path], where: Path) -> tuple[str, str
 
 def main() -> int:
     """Run every case and print the count per class and the cases outside clear and handled."""
-    from tests.fault_cases import CASES, build_inputs
+    from tests.fault_cases import build_inputs
+    from tests.fault_cases_runs import CASES
 
     with tempfile.TemporaryDirectory() as tmp:
         inputs = build_inputs(Path(tmp) / "inputs")

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.fault_cases import CASES, build_inputs
+from tests.fault_cases import build_inputs
+from tests.fault_cases_runs import CASES
 from tests.fault_table import Case, run_case
 
 
