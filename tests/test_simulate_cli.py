@@ -155,8 +155,12 @@ def test_existing_out_needs_force(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "already exists" in capsys.readouterr().err
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
     assert (out / "keep.txt").read_text() == "precious"
-    assert main([*argv, "--force"]) == 0
-    assert not (out / "keep.txt").exists()
+    assert main([*argv, "--force"]) == 2  # --force replaces only a dataset hec wrote
+    assert "exists and is not a hec dataset" in capsys.readouterr().err
+    assert (out / "keep.txt").read_text() == "precious"
+    (out / "keep.txt").unlink()
+    assert main(argv) == 2 and main([*argv, "--force"]) == 0  # an empty folder: nothing to lose
+    assert main([*argv, "--force"]) == 0  # a dataset hec wrote
     assert len(load_dataset(out)) == 2
     assert _leftovers(out) == []
 
@@ -171,8 +175,9 @@ def test_crash_mid_run_leaves_no_folder(
 ) -> None:
     scenario = _write_case(tmp_path / "case", _good(0, 9))
     out = tmp_path / "out"
-    if existing:
+    if existing:  # a dataset of an earlier run (--force replaces only those) with a file of the user's
         out.mkdir()
+        (out / "dataset.json").write_text('{"format": "hec-dataset"}')
         (out / "keep.txt").write_text("precious")
     original = SimCell.capture
     captured: list[int] = []
@@ -192,7 +197,7 @@ def test_crash_mid_run_leaves_no_folder(
     assert len(partial_at_crash) == 1, "the first frame should have been written to a partial folder"
     assert _leftovers(out) == []
     if existing:
-        assert [p.name for p in out.iterdir()] == ["keep.txt"]
+        assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "keep.txt"]
         assert (out / "keep.txt").read_text() == "precious"
     else:
         assert not out.exists()
