@@ -27,6 +27,10 @@ from hec.estimator.solve.methods import needs_learned_noise, run_method
 from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
+# The closed forms the poses are checked with before any estimation, in order (each takes
+# milliseconds); Park alone finds no mount on some data the others fit.
+CHECK_METHODS = ("opencv-park", "opencv-tsai", "opencv-horaud")
+
 
 def run_methods(
     names: list[str],
@@ -107,17 +111,23 @@ def _loo_models(
 
 def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
     """Fail in seconds, before any estimation, when the robot poses do not fit the images at any mount:
-    OpenCV's Park method (milliseconds) leaves MAX_CORNER_RMS_PX or more. The error says why, with the
-    convention check of an imported dataset's pose numbers (hec.estimator.io.convention_check)."""
+    the best of OpenCV's closed forms (CHECK_METHODS, milliseconds each) leaves MAX_CORNER_RMS_PX or
+    more, or none of them finds a mount at all. The error says why, with the convention check of an
+    imported dataset's pose numbers (hec.estimator.io.convention_check)."""
     from hec.estimator.solve.baselines import opencv_calibrate
+    from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, rotation_spread
     from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
 
-    try:
-        park = opencv_calibrate(problem, MethodOptions(), "opencv-park")
-    except CalibrationInputError:
-        return  # too few or degenerate views: each method says so itself
-    if park.residual_rms_px < MAX_CORNER_RMS_PX:
-        return
+    if rotation_spread([f.T_base_flange for f in problem.frames])[1] < MIN_AXIS_SPREAD:
+        return  # too little rotation to tell: each method says so itself
+    residuals = []
+    for method in CHECK_METHODS:
+        try:
+            residuals.append(opencv_calibrate(problem, MethodOptions(), method).residual_rms_px)
+        except CalibrationInputError:
+            continue  # no solution from this closed form: the next may find one
+        if residuals[-1] < MAX_CORNER_RMS_PX:
+            return
     from hec.estimator.io.convention_check import check_pose_convention, px_text
 
     record = dataset.metadata.get("provenance") or {}
@@ -128,8 +138,12 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
         why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
     else:
         why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
+    best = (
+        f"the best closed-form mount leaves {px_text(min(residuals))} RMS"
+        if residuals
+        else f"none of {', '.join(CHECK_METHODS)} finds a mount"
+    )
     raise CalibrationInputError(
-        "the robot poses do not fit the images at any mount (the best closed-form mount leaves "
-        f"{px_text(park.residual_rms_px)} RMS, {MAX_CORNER_RMS_PX:.0f} px is the most any model explains); "
-        + why
+        f"the robot poses do not fit the images at any mount ({best}; {MAX_CORNER_RMS_PX:.0f} px RMS is "
+        f"the most any model explains); {why}"
     )
