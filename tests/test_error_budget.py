@@ -18,6 +18,7 @@ from hec.sweep.parameters import ERROR_SOURCES, error_source_set, error_sources_
 from hec.sweep.rows import load_rows
 from hec.sweep.runner import run_sweep
 from hec.sweep.summary import summarise
+from tests.hec_cli import run_hec
 
 REALISTIC = models_dir() / "scenarios" / "realistic.toml"
 
@@ -84,6 +85,17 @@ def test_budget_sweep_runs_and_reports(tmp_path: Path, monkeypatch: pytest.Monke
     assert "Error budget" in built.html.read_text()
     text = (out / TEXT_FILE).read_text().splitlines()
     assert text[0].split()[:2] == ["source", "method"] and len(text) == 1 + 4
+
+    # The results page: a budget row per source, ekf beside Park (the only, so the best, OpenCV).
+    code, stdout, stderr = run_hec(["report", str(out), "--page", str(tmp_path / "budget.md")])
+    assert code == 0 and "page: " in stdout, stderr
+    page = (tmp_path / "budget.md").read_text()
+    assert page.startswith("# Sweep results: budget\n") and "Written by `hec report DIR" in page
+    budget = page.split("## Error budget (medians)")[1].split("## ")[0]
+    for source in ("none", "board"):
+        cells = next(line for line in budget.splitlines() if line.startswith(f"| {source} |")).split(" | ")
+        assert float(cells[3].split(" / ")[0]) == pytest.approx(park_median_mm(source), abs=1e-3)
+        assert cells[4].startswith("park ") and cells[5].endswith("x |")
 
 
 def test_budget_table_gives_median_p95_and_mean_nees() -> None:

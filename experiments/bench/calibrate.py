@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _write_page(args: argparse.Namespace, rows: list[list[str]]) -> None:
-    command = f"python -m hec.bench.calibrate --seed {args.seed} --rounds {args.rounds} --page PAGE"
+    command = f"python -m hec.bench.calibrate --seed {args.seed} --rounds {args.rounds} --page {args.page}"
     intro = (
         f"`hec calibrate` on the 17-frame datasets of seed {args.seed}, detection done beforehand and"
         f" not counted; the median of {args.rounds} timing(s) per command. The goals are on CPU time"

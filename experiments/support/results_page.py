@@ -20,10 +20,15 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 
 def machine_line() -> str:
-    """Where and when the figures were measured: date, cores, CPU and Python."""
+    """Where and when the figures were measured: date, cores, CPU, Python and the machine's load
+    (other work running beside the benchmark slows it)."""
     today = datetime.date.today().isoformat()
     cpu = platform.processor() or platform.machine()
-    return f"Measured on {today}: {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}."
+    load = os.getloadavg()[1]
+    return (
+        f"Measured on {today}: {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}; "
+        f"load average {load:.1f} over the last 5 minutes at the end."
+    )
 
 
 def write_results_page(path: Path, title: str, command: str, body: Sequence[str]) -> Path:
