@@ -14,6 +14,7 @@ from hec.sim.scenario import load_scenario
 from hec.sweep import report
 from hec.sweep.budget import TEXT_FILE, budget_text, has_budget
 from hec.sweep.config import SweepConfigError, cell_scenario, load_config, scenario_defaults
+from hec.sweep.page import paired_cost
 from hec.sweep.parameters import ERROR_SOURCES, error_source_set, error_sources_name
 from hec.sweep.rows import load_rows
 from hec.sweep.runner import run_sweep
@@ -136,3 +137,12 @@ def test_budget_table_gives_median_p95_and_mean_nees() -> None:
         assert math.isclose(float(fields[6]), 2.0, abs_tol=1e-2)  # mean of 0..4
         assert fields[7] == "5/5"
     assert not has_budget([s for s in summaries if s.parameters["error_sources"] == "arm"])
+
+    # Paired: arm's extra error over the ideal cell, trial by trial (the same t in both cells).
+    ideal, arm = (
+        [r["error_translation_mm"] for r in rows if r["error_sources"] == c] for c in ("none", "arm")
+    )
+    differences = np.subtract(arm, ideal)
+    mean, standard_error = paired_cost(rows, "ekf")["arm"].split(" +- ")
+    assert math.isclose(float(mean), differences.mean(), abs_tol=1e-3)
+    assert math.isclose(float(standard_error), differences.std(ddof=1) / np.sqrt(5), abs_tol=1e-3)
