@@ -96,7 +96,7 @@ def test_budget_sweep_runs_and_reports(tmp_path: Path, monkeypatch: pytest.Monke
     for source in ("none", "board"):
         cells = next(line for line in budget.splitlines() if line.startswith(f"| {source} |")).split(" | ")
         assert float(cells[3].split(" / ")[0]) == pytest.approx(park_median_mm(source), abs=1e-3)
-        assert cells[4].startswith("park ") and cells[5].endswith("x |")
+        assert cells[4].startswith("park ") and cells[5].endswith("x") and cells[6] == "- |"  # unpaired
 
 
 def test_budget_table_gives_median_p95_and_mean_nees() -> None:
