@@ -120,13 +120,13 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
 
     if rotation_spread([f.T_base_flange for f in problem.frames])[1] < MIN_AXIS_SPREAD:
         return  # too little rotation to tell: each method says so itself
-    residuals = []
+    solved = []
     for method in CHECK_METHODS:
         try:
-            residuals.append(opencv_calibrate(problem, MethodOptions(), method).residual_rms_px)
+            solved.append(opencv_calibrate(problem, MethodOptions(), method))
         except CalibrationInputError:
             continue  # no solution from this closed form: the next may find one
-        if residuals[-1] < MAX_CORNER_RMS_PX:
+        if solved[-1].residual_rms_px < MAX_CORNER_RMS_PX:
             return
     from hec.estimator.io.convention_check import check_pose_convention, px_text
 
@@ -138,12 +138,13 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
         why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
     else:
         why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
-    best = (
-        f"the best closed-form mount leaves {px_text(min(residuals))} RMS"
-        if residuals
+    best = min(solved, key=lambda c: c.residual_rms_px, default=None)
+    best_text = (
+        f"the best closed-form mount leaves {px_text(best.residual_rms_px)} RMS"
+        if best is not None
         else f"none of {', '.join(CHECK_METHODS)} finds a mount"
     )
     raise CalibrationInputError(
-        f"the robot poses do not fit the images at any mount ({best}; {MAX_CORNER_RMS_PX:.0f} px RMS is "
+        f"the robot poses do not fit the images at any mount ({best_text}; {MAX_CORNER_RMS_PX:.0f} px RMS is "
         f"the most any model explains); {why}"
     )
