@@ -291,10 +291,15 @@ def rendered_samples(default_dataset: Path, tmp_path_factory: pytest.TempPathFac
 def test_each_pose_pair_direction_mistake_is_named_on_rendered_pairs(
     rendered_samples, tmp_path, capsys, options, said
 ) -> None:
+    """A mistake named is refused, nothing written; the stated reading that fits is imported."""
     argv = ["import", "easy_handeye2", str(rendered_samples), "--out", str(tmp_path / "pairs"), *options]
-    assert main(argv) == 0
-    out = capsys.readouterr().out
-    assert f"convention check: {said}" in out or f"convention check: the pose pairs look like {said}" in out
+    code = main(argv)
+    out, err = capsys.readouterr()
+    if options:
+        assert code == 2 and f"the pose pairs look like {said}" in err and "nothing written" in err, err
+        assert not (tmp_path / "pairs").exists()
+    else:
+        assert code == 0 and f"convention check: {said}" in out
 
 
 def test_bad_sources_name_the_file_and_the_field(exported, tmp_path) -> None:

@@ -137,9 +137,10 @@ def test_import_names_a_wrong_pose_pair_direction(tmp_path: Path, capsys, option
     samples = write_easy_handeye_samples(
         tmp_path / "cell.samples", _pairs(np.random.default_rng(4), 12, SIGMAS)
     )
-    assert main(["import", "easy_handeye2", str(samples), "--out", str(tmp_path / "pairs"), *options]) == 0
-    out = capsys.readouterr().out
+    code = main(["import", "easy_handeye2", str(samples), "--out", str(tmp_path / "pairs"), *options])
+    out, err = capsys.readouterr()
     if named is None:
-        assert "convention check: the pose pairs fit the stated directions" in out
-    else:
-        assert "convention check: the pose pairs look like" in out and named in out
+        assert code == 0 and "convention check: the pose pairs fit the stated directions" in out
+    else:  # refused: nothing written
+        assert code == 2 and "the pose pairs look like" in err and named in err, err
+        assert not (tmp_path / "pairs").exists()

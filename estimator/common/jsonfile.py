@@ -8,11 +8,22 @@ from pathlib import Path
 import yaml
 
 
+def read_text(path: Path, error: type[Exception]) -> str:
+    """path's text (UTF-8, a byte-order mark dropped); raises error naming the file when it holds
+    bytes that are not text (an image or a binary file given by mistake)."""
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{path}: not a text file (byte {exc.start} is not UTF-8); is it the file you meant?"
+        ) from None
+
+
 def read_json_object(path: Path, error: type[Exception], missing: str = "file missing") -> dict:
     """The JSON object in ``path``; raises ``error`` naming the file when it is
     missing (with the words ``missing``), not JSON, or not an object."""
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_text(path, error))
     except FileNotFoundError:
         raise error(f"{path}: {missing}") from None
     except json.JSONDecodeError as exc:
@@ -26,7 +37,7 @@ def read_yaml_object(path: Path, error: type[Exception], missing: str = "file mi
     """The YAML mapping in ``path`` (JSON is YAML); raises ``error`` naming the file when it is
     missing (with the words ``missing``), not YAML, or not a mapping."""
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text(path, error))
     except FileNotFoundError:
         raise error(f"{path}: {missing}") from None
     except yaml.YAMLError as exc:

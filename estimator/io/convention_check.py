@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -31,7 +30,7 @@ from hec.estimator.io.pose_file import EULER_SEQUENCES, PoseConvention, PoseFile
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import opencv_calibrate
 from hec.estimator.solve.calibration import MethodOptions
-from hec.estimator.solve.initialise import board_pose_pnp
+from hec.estimator.solve.misfit import board_residual_px, data_noise_px, declared_corner_sigma_px
 from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
 
@@ -210,25 +209,6 @@ def check_pose_convention(
     return ConventionReport(stated_trial, others, best if named else None, noise)
 
 
-def data_noise_px(problem: CalibrationProblem) -> float:
-    """The RMS pixel residual the data's noise alone leaves (pixels): each frame's own board pose
-    (PnP) residual, with the declared robot pose noise seen at the board's distance added in
-    quadrature (focal length x (translation sigma / distance + rotation sigma))."""
-    corners = _board_residual_px(problem, np.ones(3))
-    focal = float(np.mean(np.diag(problem.intrinsics.K)[:2]))
-    distance = float(np.median([_board_distance_m(problem, f) for f in problem.frames]))
-    noise = problem.robot_noise
-    robot = focal * (noise.translation_sigma_m / max(distance, 1e-3) + noise.rotation_sigma_rad)
-    return float(np.hypot(corners, robot))
-
-
-def _board_distance_m(problem: CalibrationProblem, frame) -> float:
-    try:
-        return float(np.linalg.norm(board_pose_pnp(problem, frame)[:3, 3]))
-    except CalibrationInputError:
-        return float("nan")
-
-
 def _degenerate_motion(T_base_flange: np.ndarray) -> str | None:
     """Why the flange's motion (N, 4, 4) cannot tell pose readings apart, or None: no rotation
     between views, or rotations about one axis only."""
@@ -303,16 +283,32 @@ class PairReading:
     board_m: float = float("nan")
 
 
-def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, tracking_direction: str) -> str:
+@dataclass(frozen=True)
+class PairCheck:
+    """What check_pose_pair_directions found: its sentence, and whether the pairs fit as stated
+    (fits), fit another reading better (a mistake, to refuse) or cannot tell (cannot_check)."""
+
+    message: str
+    mistake: bool = False
+    cannot_check: bool = False
+
+
+def check_pose_pair_directions(
+    pairs: list[PosePair], robot_direction: str, tracking_direction: str
+) -> PairCheck:
     """Which reading of pose pairs fits: as stated (pairs read in robot_direction and
     tracking_direction), the robot poses inverted, the camera-to-target poses inverted, or both; in
     words, with the residual before and after (the board pose's RMS translation over the pairs at
-    Park's solution).
+    Park's solution). Robot motion that cannot tell the readings apart (no rotation, one axis, the
+    same pose throughout) is 'cannot check'.
 
     Inverting both fits exactly as well as not, with the roles swapped: the mount comes out as the
     board's pose in the base frame and the board's as the mount. So only readings that put the
     camera nearer the flange than the board is to the base are taken (a camera on a flange is not
     across the cell from it), unless none does."""
+    cannot = _degenerate_motion(np.array([p.T_base_flange for p in pairs]))
+    if cannot is not None:
+        return PairCheck(f"cannot check the pose pairs' directions: {cannot}", cannot_check=True)
     other_robot, other_tracking = _other(robot_direction), _swap(tracking_direction, *TRACKING_DIRECTIONS)
     readings = [
         ("", "", False, False),
@@ -332,6 +328,12 @@ def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, trac
     ]
     trials = [_pair_reading(pairs, m, o, a, z) for m, o, a, z in readings]
     stated = trials[0]
+    if not any(np.isfinite(t.residual_m) for t in trials):
+        return PairCheck(
+            "cannot check the pose pairs' directions: Park finds no solution in any reading (poses that "
+            "repeat, or too few)",
+            cannot_check=True,
+        )
     best = min([t for t in trials if t.mount_m < t.board_m] or trials, key=lambda t: t.residual_m)
     if best is not stated and best.residual_m < MISTAKE_RATIO * stated.residual_m:
         after = f"{1e3 * best.residual_m:.3g} mm"
@@ -340,16 +342,19 @@ def check_pose_pair_directions(pairs: list[PosePair], robot_direction: str, trac
             if not np.isfinite(stated.residual_m)
             else f"the board pose's spread drops from {1e3 * stated.residual_m:.3g} mm to {after}"
         )
-        return f"the pose pairs look like {best.mistake}: {change}; pass {best.option}"
+        return PairCheck(
+            f"the pose pairs look like {best.mistake}: {change}; pass {best.option}", mistake=True
+        )
     if best is not stated and not stated.mount_m < stated.board_m:
-        return (
+        return PairCheck(
             f"the pose pairs look like {best.mistake}: they fit as well either way (board pose spread "
             f"{1e3 * stated.residual_m:.3g} mm as stated, {1e3 * best.residual_m:.3g} mm read so), but as "
             f"stated the camera sits {stated.mount_m:.2f} m from the flange and the board "
             f"{stated.board_m:.2f} m from the base, read so {best.mount_m:.2f} m and {best.board_m:.2f} m; "
-            f"pass {best.option}"
+            f"pass {best.option}",
+            mistake=True,
         )
-    return (
+    return PairCheck(
         f"the pose pairs fit the stated directions (the board pose's spread {1e3 * stated.residual_m:.3g} mm "
         "RMS); none of the common mistakes fits better"
     )
@@ -382,37 +387,26 @@ def check_board_layout(problem: CalibrationProblem) -> str:
     points kept, as a board file written in a frame with x or y the other way would be); in words,
     with the RMS pixel residual of each frame's board pose (PnP) before and after. A board of
     one-point markers mirrored is the same points seen from behind, a rigid change the board pose
-    absorbs: nothing to name."""
-    stated = _board_residual_px(problem, np.ones(3))
+    absorbs: nothing to name. A residual far above the corners' declared noise that no mirroring
+    removes is named as such (the camera model, not the layout)."""
+    stated = board_residual_px(problem, np.ones(3))
     readings = [
         ("left to right (x)", np.array([-1.0, 1.0, 1.0])),
         ("top to bottom (y)", np.array([1.0, -1.0, 1.0])),
     ]
-    words, residual = min(((w, _board_residual_px(problem, m)) for w, m in readings), key=lambda t: t[1])
+    words, residual = min(((w, board_residual_px(problem, m)) for w, m in readings), key=lambda t: t[1])
     if residual < MISTAKE_RATIO * stated:
         return (
             f"the board file's marker layout looks mirrored {words}: the residual of the board poses drops "
             f"from {stated:.3g} px to {residual:.3g} px with the markers' centres reflected; correct the "
             "board file's marker centres"
         )
+    sigma = declared_corner_sigma_px(problem)
+    if stated > NOISE_RATIO * sigma:
+        return (
+            f"the board poses leave {stated:.2g} px RMS, {stated / sigma:.0f} times the corners' noise "
+            f"({sigma:.2g} px), and no better mirrored: the board file's layout is not the cause, but the "
+            "intrinsics or lens model (or a board that is not flat) do not match the images; check the "
+            "camera's calibration"
+        )
     return f"the board file's layout fits the images ({stated:.2g} px RMS residual of the board poses)"
-
-
-def _board_residual_px(problem: CalibrationProblem, mirror: np.ndarray) -> float:
-    """RMS pixel residual of each frame's PnP board pose, the markers' centres scaled by mirror (3,)."""
-    K, dist = problem.intrinsics.K, np.array(problem.intrinsics.dist, dtype=np.float64)
-    squared, count = 0.0, 0
-    for frame in problem.frames:
-        points = []
-        for m in frame.markers:
-            center = m.corners_board.mean(axis=0)
-            points.append(m.corners_board - center + mirror * center)
-        object_points = np.concatenate(points)
-        image_points = np.concatenate([m.corners_px for m in frame.markers])
-        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, K, dist, flags=cv2.SOLVEPNP_SQPNP)
-        if not ok:
-            return float("inf")
-        projected = cv2.projectPoints(object_points, rvec, tvec, K, dist)[0].reshape(-1, 2)
-        squared += float(np.sum((projected - image_points) ** 2))
-        count += len(image_points)
-    return float(np.sqrt(squared / max(count, 1)))

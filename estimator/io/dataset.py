@@ -41,6 +41,7 @@ import csv
 import json
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -51,7 +52,7 @@ from hec.estimator.common.files import open_text, write_atomic
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
-from hec.estimator.io.lock import remove_dead_partials
+from hec.estimator.io.lock import remove_dead_partials, writers_running
 from hec.estimator.io.png import write_png
 from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError, Frame, GroundTruth
 from hec.estimator.targets.kinds import load_board
@@ -68,7 +69,22 @@ def frame_columns(joint_count: int = UR_JOINTS) -> tuple[str, ...]:
 
 
 FRAME_COLUMNS = frame_columns()
+# The files of a dataset folder that hec reads (an output never replaces one).
+DATASET_FILES = (
+    "dataset.json",
+    "frames.csv",
+    "board.json",
+    "ground_truth.json",
+    "pose_pairs.json",
+    "detections.json",
+)
 SESSION_COLUMNS = ("waypoint", "depth_samples")
+
+
+def dataset_inputs(folder: str | Path) -> dict[str, Path]:
+    """The files of the dataset at folder that hec reads and that exist, each named for a message
+    ("dataset's frames.csv")."""
+    return {f"dataset's {n}": Path(folder) / n for n in DATASET_FILES if (Path(folder) / n).is_file()}
 
 
 def _matrix(T: np.ndarray) -> list[list[float]]:
@@ -97,6 +113,8 @@ class DatasetWriter:
         self.out_dir = Path(out_dir)
         if self.out_dir.exists() and not force:
             raise FileExistsError(f"{self.out_dir} already exists; use --force to replace it")
+        if self.out_dir.exists():
+            refuse_replacing_other_files(self.out_dir)
         self.intrinsics = intrinsics
         self.board = board
         self.depth_scale_m = depth_scale_m
@@ -107,6 +125,13 @@ class DatasetWriter:
         if self.tmp_dir.exists():
             shutil.rmtree(self.tmp_dir)
         self.tmp_dir.mkdir(parents=True)
+        others = writers_running(self.out_dir)
+        if others:
+            shutil.rmtree(self.tmp_dir)
+            raise FileExistsError(
+                f"{self.out_dir}: another hec run (process {others[0]}) is writing it now; wait for it to "
+                "end or choose another output folder"
+            )
         self.rows: list[list[str]] = []
         self.joint_count: int | None = None
 
@@ -141,8 +166,16 @@ class DatasetWriter:
         """Another file of the dataset (name relative to its folder), written with it."""
         write_atomic(self.tmp_dir / name, text)
 
-    def finish(self, ground_truth: GroundTruth | None = None, extra: dict | None = None) -> Path:
-        """Write the tables and metadata, then move the dataset into place."""
+    def finish(
+        self,
+        ground_truth: GroundTruth | None = None,
+        extra: dict | None = None,
+        check: Callable[[Path], None] | None = None,
+    ) -> Path:
+        """Write the tables and metadata, run check on the complete temporary folder (an import's
+        detection and checks: if it fails or is stopped, nothing appears), then move the dataset
+        into place. A folder that appeared at out_dir meanwhile (another run) is replaced only with
+        force, and only if it is a dataset."""
         with open_text(self.tmp_dir / "frames.csv", "w") as f:
             writer = csv.writer(f, lineterminator="\n")
             writer.writerow(frame_columns(UR_JOINTS if self.joint_count is None else self.joint_count))
@@ -155,7 +188,15 @@ class DatasetWriter:
         if self.board is None:
             meta["board_file"] = None
         dump_json(self.tmp_dir / "dataset.json", meta | (extra or {}))
+        if check is not None:
+            check(self.tmp_dir)
         if self.out_dir.exists():
+            if not self.force:
+                raise FileExistsError(
+                    f"{self.out_dir}: appeared while this run wrote it (another run?); it is kept and "
+                    "nothing was written; choose another output folder or pass --force"
+                )
+            refuse_replacing_other_files(self.out_dir)
             trash = self.out_dir.parent / f".{self.out_dir.name}.old-{os.getpid()}"
             self.out_dir.rename(trash)
             self.tmp_dir.rename(self.out_dir)
@@ -163,6 +204,22 @@ class DatasetWriter:
         else:
             self.tmp_dir.rename(self.out_dir)
         return self.out_dir
+
+
+def refuse_replacing_other_files(out_dir: Path) -> None:
+    """FileExistsError unless out_dir is empty or a hec dataset (its dataset.json says so): --force
+    replaces only what hec wrote, never a user's other files."""
+    if out_dir.is_dir() and not any(out_dir.iterdir()):
+        return
+    try:
+        format_ = json.loads((out_dir / "dataset.json").read_text()).get("format")
+    except (OSError, ValueError, AttributeError):
+        format_ = None
+    if format_ != FORMAT:
+        raise FileExistsError(
+            f"{out_dir}: exists and is not a hec dataset; --force replaces only a dataset hec wrote: "
+            "choose another output folder or move this one away"
+        )
 
 
 def write_frame_files(

@@ -7,13 +7,19 @@ child-frame-id, URDF's parent -> child). With the child the camera's optical fra
 parent being the frame the robot reported (tool0). With the child the camera's root link (such as
 RealSense's camera_link, whose driver publishes camera_link -> camera_color_optical_frame), that
 driver transform T_link_optical is composed out: T_parent_link = T_flange_cam @ inv(T_link_optical).
-Numbers are written with repr (shortest round trip) so a reader gets the transform back to 1e-15.
+Numbers are written with repr (shortest round trip) so a reader gets the transform back to 1e-15,
+and only finite ones. Frame names are refused when empty or holding white space or control
+characters (no tool's frame has them, and a line break would end a comment), and escaped for the
+format they go into (XML attributes, shell words, Python and YAML strings).
 """
 
 from __future__ import annotations
 
 import json
+import shlex
+import unicodedata
 from dataclasses import dataclass
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 import yaml
@@ -63,6 +69,10 @@ class Export:
     T_link_optical: np.ndarray | None = None
     link_source: str = ""
 
+    def __post_init__(self) -> None:
+        check_frame_name(self.parent, "parent frame (--parent)")
+        check_frame_name(self.child, "child frame (--child)")
+
     @property
     def composes_link(self) -> bool:
         return not self.child.endswith(OPTICAL_SUFFIX)
@@ -110,6 +120,19 @@ class Export:
         return lines
 
 
+def check_frame_name(name: str, what: str) -> None:
+    """ValueError naming what (e.g. "child frame (--child)") when name is empty or holds white
+    space or control characters."""
+    if not name:
+        raise ValueError(f"{what}: the name is empty; give the frame's name as tf2 and the URDF know it")
+    bad = [c for c in name if c.isspace() or unicodedata.category(c).startswith("C")]
+    if bad:
+        raise ValueError(
+            f"{what} {name!r}: a frame name holds no white space or control characters (found {bad[0]!r}); "
+            "give the frame's name as tf2 and the URDF know it"
+        )
+
+
 def _number(v: float) -> str:
     return repr(float(v))
 
@@ -133,12 +156,8 @@ def _publisher_arguments(e: Export) -> list[str]:
 def ros2_args(e: Export) -> str:
     """The `ros2 run tf2_ros static_transform_publisher` command line, after '#' comment lines."""
     lines = [f"# {line}" for line in e.comment()]
-    return (
-        "\n".join(
-            [*lines, " ".join(["ros2 run tf2_ros static_transform_publisher", *_publisher_arguments(e)])]
-        )
-        + "\n"
-    )
+    words = ["ros2", "run", "tf2_ros", "static_transform_publisher", *_publisher_arguments(e)]
+    return "\n".join([*lines, shlex.join(words)]) + "\n"
 
 
 def ros2_launch(e: Export) -> str:
@@ -181,9 +200,9 @@ def urdf(e: Export) -> str:
     return f'''<?xml version="1.0"?>
 <robot name="hec_camera_mount">
 {_xml_comment(notes)}
-  <joint name="{joint}" type="fixed">
-    <parent link="{e.parent}"/>
-    <child link="{e.child}"/>
+  <joint name={quoteattr(joint)} type="fixed">
+    <parent link={quoteattr(e.parent)}/>
+    <child link={quoteattr(e.child)}/>
     <origin xyz="{xyz}" rpy="{rpy}"/>
   </joint>
 </robot>
@@ -282,4 +301,8 @@ def export_text(e: Export, fmt: str) -> str:
     """The calibration in format fmt (one of FORMATS)."""
     if fmt not in WRITERS:
         raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    if not np.all(np.isfinite(e.T_parent_child)):
+        raise ValueError(
+            f"{e.calibration.path}: T_{e.parent}_{e.child} holds numbers that are not finite; nothing written"
+        )
     return WRITERS[fmt](e)

@@ -6,6 +6,7 @@ hec version and the time of the import."""
 from __future__ import annotations
 
 import datetime
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -61,9 +62,11 @@ def import_images(
     record: dict,
     extra: dict | None = None,
     force: bool = False,
+    check: Callable[[Path], None] | None = None,
 ) -> Path:
     """Write the layout's images, depths and poses as a hec dataset at out (nothing appears there
-    unless it completes). record: the provenance; extra: more dataset.json fields (robot_model)."""
+    unless it completes). record: the provenance; extra: more dataset.json fields (robot_model);
+    check: run on the complete dataset before it is moved to out (its failure leaves nothing)."""
     T_base_flange = frames.T_base_flange
     # PNG depths are stored as they came; .npy depths (often float metres) in steps of 0.1 mm, which
     # hold 6.5 m (farther pixels are stored as no depth).
@@ -81,7 +84,7 @@ def import_images(
                     time_s=float(i),
                 )
             )
-        return writer.finish(extra={"provenance": record, **(extra or {})})
+        return writer.finish(extra={"provenance": record, **(extra or {})}, check=check)
 
 
 def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
@@ -92,9 +95,10 @@ def _rgb(path: Path, intrinsics: CameraIntrinsics) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np.ndarray:
+def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np.ndarray | None:
     """(H, W) float32 metres of a 16-bit depth PNG or a numpy .npy depth image (integers or floats,
-    either times depth_scale_m), 0 where there is no depth."""
+    either times depth_scale_m), 0 where there is no depth; None when no pixel has depth (the frame
+    is imported without depth, as it is)."""
     if path.suffix.lower() == ".npy":
         try:
             raw = np.load(path, allow_pickle=False)
@@ -113,7 +117,7 @@ def _depth(path: Path, intrinsics: CameraIntrinsics, depth_scale_m: float) -> np
         _check_size(path, raw, intrinsics)
         depth_m = decode_depth(raw, depth_scale_m)
     _check_depth_range(path, depth_m, depth_scale_m)
-    return depth_m
+    return depth_m if depth_m.any() else None
 
 
 def _check_depth_range(path: Path, depth_m: np.ndarray, depth_scale_m: float) -> None:

@@ -57,7 +57,8 @@ def read_intrinsics(path: str | Path, image_size: tuple[int, int] | None = None)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise IntrinsicsFileError(f"{path}: neither OpenCV FileStorage nor YAML/JSON ({exc})") from None
+        why = " ".join(str(exc).split())
+        raise IntrinsicsFileError(f"{path}: neither OpenCV FileStorage nor YAML/JSON ({why})") from None
     if not isinstance(data, dict):
         raise IntrinsicsFileError(f"{path}: expected a mapping of intrinsics fields")
     if isinstance(data.get("cam0"), dict):

@@ -28,6 +28,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from hec.estimator.common.files import write_atomic
+from hec.estimator.common.jsonfile import read_text
 from hec.estimator.geometry.kinematics import URKinematics, forward, joints_in_arm_order
 from hec.estimator.geometry.transforms import make_transform
 from hec.estimator.io.pairing import Pairing, natural_key, pair_images
@@ -274,7 +275,7 @@ def _numbered(folder: Path, suffixes: tuple[str, ...], what: str) -> dict[int, P
 
 def _visp_pose(path: Path) -> list[float]:
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text(path, LayoutError))
     except yaml.YAMLError as exc:
         raise LayoutError(f"{path}: not YAML ({exc})") from None
     if not isinstance(data, dict) or data.get("rows") != 6 or data.get("cols") != 1:
@@ -310,7 +311,7 @@ def read_easy_handeye_samples(path: str | Path) -> list[PosePair]:
     if not path.is_file():
         raise LayoutError(f"{path}: samples file not found")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_text(path, LayoutError))
     except yaml.YAMLError as exc:
         raise LayoutError(f"{path}: not YAML ({exc})") from None
     samples = data.get("samples") if isinstance(data, dict) else None
@@ -340,8 +341,10 @@ def _ros_transform(value: object, where: str) -> np.ndarray:
         raise LayoutError(
             f"{where}: expected translation {{x, y, z}} and rotation {{x, y, z, w}}, got {value!r}"
         ) from None
+    if not np.all(np.isfinite(t + q)):
+        raise LayoutError(f"{where}: translation and rotation must be finite numbers, got {value!r}")
     norm = float(np.linalg.norm(q))
-    if not np.all(np.isfinite(t)) or abs(norm - 1.0) > 1e-3:
+    if abs(norm - 1.0) > 1e-3:
         raise LayoutError(f"{where}: rotation quaternion has norm {norm:.4g}, not 1")
     return make_transform(Rotation.from_quat(q).as_matrix(), np.array(t))
 

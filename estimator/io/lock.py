@@ -86,16 +86,30 @@ def release_lock(folder: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+def _partials(target: Path) -> list[tuple[Path, int]]:
+    """The .TARGET.partial-PID siblings of target of other processes than this one, with their PIDs."""
+    found = []
+    for partial in Path(target).parent.glob(f".{Path(target).name}.partial-*"):
+        match = _PARTIAL.search(partial.name)
+        if match and int(match[1]) != os.getpid():
+            found.append((partial, int(match[1])))
+    return found
+
+
 def remove_dead_partials(target: Path) -> list[Path]:
     """Remove the .TARGET.partial-PID siblings of target whose process no longer runs (left by a
     killed run). Returns the folders removed."""
     removed = []
-    for partial in Path(target).parent.glob(f".{Path(target).name}.partial-*"):
-        match = _PARTIAL.search(partial.name)
-        if match and int(match[1]) != os.getpid() and not process_alive(int(match[1])):
+    for partial, pid in _partials(target):
+        if not process_alive(pid):
             if partial.is_dir():
                 shutil.rmtree(partial, ignore_errors=True)
             else:
                 partial.unlink(missing_ok=True)
             removed.append(partial)
     return removed
+
+
+def writers_running(target: Path) -> list[int]:
+    """The PIDs of other running processes writing target (a live .TARGET.partial-PID sibling)."""
+    return sorted(pid for _, pid in _partials(target) if process_alive(pid))

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from hec.estimator.common.jsonfile import read_text
 from hec.estimator.io.pose_table import NumberTable, PoseFileError, check_table, number_in_name
 
 _SEPARATORS = re.compile(r"[\s,;\[\]]+")
@@ -72,10 +73,7 @@ def _describe(values: list[float], columns: list[str] | None) -> str:
 
 def _read_one(path: Path) -> tuple[list[float], list[str] | None]:
     """One file's numbers and, for a mapping, their names (dotted paths)."""
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise PoseFileError(f"{path}: not a text file") from None
+    text = read_text(path, PoseFileError)
     if path.suffix.lower() in (".yaml", ".yml", ".json"):
         try:
             data = yaml.safe_load(text)  # JSON is YAML

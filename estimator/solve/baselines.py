@@ -110,12 +110,6 @@ def opencv_calibrate(problem: CalibrationProblem, options: MethodOptions, method
         observations_rejected=0,
         diagnostics={"iterations": 0, "time_s": elapsed, "pnp_frames": len(T_cam_board)},
     )
-    if result.residual_rms_px > MISFIT_RESIDUAL_PX:
-        result.warnings.append(
-            f"{method}'s result does not fit the observations (RMS residual "
-            f"{result.residual_rms_px:.0f} px): the robot poses, board file or intrinsics do not match the "
-            "images, or OpenCV returned a wrong solution without an error; do not use it"
-        )
     return result
 
 

@@ -8,11 +8,12 @@ from dataclasses import replace
 import numpy as np
 
 from hec.estimator.observe.observations import FrameObservations
-from hec.estimator.solve.baselines import MISFIT_RESIDUAL_PX, OPENCV_METHODS, opencv_calibrate
+from hec.estimator.solve.baselines import OPENCV_METHODS, opencv_calibrate
 from hec.estimator.solve.batch import batch
 from hec.estimator.solve.calibration import Calibration, MethodOptions, calibration_state, marker_residuals
 from hec.estimator.solve.filters import run_filter
 from hec.estimator.solve.fit_check import check_fit
+from hec.estimator.solve.misfit import misfit_warning
 from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
 from hec.estimator.solve.noise_levels import scaled_problem
 from hec.estimator.solve.observability import observability
@@ -134,11 +135,10 @@ def run_method(
 ) -> Calibration:
     """solve, and the result carries diagnostics['observability'] and the warnings it raises."""
     result = solve(name, problem, options, observations, learned)
-    if name not in OPENCV_METHODS and result.residual_rms_px > MISFIT_RESIDUAL_PX:  # those say it themselves
-        result.warnings.append(
-            f"{name}'s result does not fit the observations (RMS residual {result.residual_rms_px:.0f} px): "
-            "it is likely wrong (wrong board definition, intrinsics or robot poses?); do not use it"
-        )
+    misfit = misfit_warning(problem, result)
+    if misfit is not None:
+        result.diagnostics["misfit"] = misfit
+        result.warnings.append(misfit)
     noise = result.diagnostics.get("noise")
     seen = camera_problem(name, problem, noise)
     report = observability(seen, calibration_state(problem, result))

@@ -31,6 +31,7 @@ from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import OPENCV_METHODS, ROBOT_WORLD_METHODS
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, mean_pose, rotation_spread
+from hec.estimator.solve.misfit import FRAMES_NAMED, MISFIT_RATIO
 from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError
 
 POSE_PAIR_MODEL_METHODS = ("ekf", "iekf", "batch")
@@ -48,6 +49,9 @@ VCE_FLOOR = 1e-6
 # scale) moves the mount without leaving a residual. On the simulated realistic cell, PnP board poses
 # from factory intrinsics were 2-6.5 mm (median 5.4 mm) off along the line of sight at 0.40 m: 1.3 %.
 TRACKING_BIAS_FRACTION = 0.013
+# A tracking pose's noise, as a fraction of the viewing distance (a PnP pose along its line of sight
+# from ordinary corners), for the misfit check.
+TRACKING_NOISE_FRACTION = 0.005
 GN_ITERATIONS = 50
 # The filters' prior around the Park solution: wide, it adds no information.
 FILTER_PRIOR_SIGMA = (0.1, 0.5)  # metres, radians
@@ -88,7 +92,34 @@ def solve_pose_pairs(
     result.diagnostics["pose_pair_rms"] = PosePairModel(pairs, PAIR_NOISE_FREE).rms(
         result.T_flange_cam, result.T_base_board
     )
+    misfit = pose_pair_misfit(pairs, result, robot_noise or RobotPoseNoise())
+    if misfit is not None:
+        result.diagnostics["misfit"] = misfit
+        result.warnings.append(misfit)
     return result
+
+
+def pose_pair_misfit(pairs: list[PosePair], result: Calibration, robot_noise: RobotPoseNoise) -> str | None:
+    """The warning of a result whose board pose spread over the pairs is more than MISFIT_RATIO times
+    their noise (the robot's declared noise and TRACKING_NOISE_FRACTION of the viewing distance for
+    the tracking poses, in quadrature), naming the pairs that disagree most; None when it fits."""
+    distance = float(np.median([np.linalg.norm(p.T_cam_board[:3, 3]) for p in pairs]))
+    robot_m = robot_noise.translation_sigma_m + robot_noise.rotation_sigma_rad * distance
+    noise_m = float(np.hypot(robot_m, TRACKING_NOISE_FRACTION * distance))
+    r = PosePairModel(pairs, PAIR_NOISE_FREE).stacked(result.T_flange_cam, result.T_base_board)[0]
+    off_m = np.linalg.norm(r[:, :3], axis=1)
+    rms_m = float(np.sqrt(np.mean(off_m**2)))
+    if not rms_m > MISFIT_RATIO * noise_m:
+        return None
+    worst = np.argsort(-off_m)[:FRAMES_NAMED]
+    named = ", ".join(f"pair {pairs[i].frame} ({1e3 * off_m[i]:.0f} mm)" for i in worst)
+    return (
+        f"{result.method}'s result does not fit its data: the board pose's spread over the pairs is "
+        f"{1e3 * rms_m:.3g} mm RMS, {rms_m / noise_m:.0f} times their noise ({1e3 * noise_m:.2g} mm: the "
+        f"declared arm noise and {100 * TRACKING_NOISE_FRACTION:g} % of the viewing distance for the "
+        f"tracking poses); the pairs that disagree most: {named}; check the pose directions (hec import's "
+        "check), that each pair's poses belong together and the units; do not use this result"
+    )
 
 
 def tracking_bias_warning(pairs: list[PosePair]) -> str:

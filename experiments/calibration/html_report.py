@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import html
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -85,6 +86,7 @@ def write_calibration_report(
 ) -> Path:
     """Write out_dir/report.html (module doc) for cal, the calibration of dataset's problem; with
     T_true (4, 4) the errors against it, with comparison the --method all table. Returns the path."""
+    made = next((p for p in (*reversed(out_dir.parents), out_dir) if not p.exists()), None)
     out_dir.mkdir(parents=True, exist_ok=True)
     graded = verdict(cal)
     found = findings(cal)
@@ -126,7 +128,12 @@ def write_calibration_report(
         f"<title>hec calibration: {_e(dataset.root.name)}</title><style>{CSS}</style>"
         f"<script>{CHECK_SCRIPT}</script></head><body>{''.join(parts)}</body></html>"
     )
-    return write_atomic(out_dir / REPORT_FILE, page)
+    try:
+        return write_atomic(out_dir / REPORT_FILE, page)
+    except BaseException:
+        if made:  # no empty folder left by a report that could not be written
+            shutil.rmtree(made, ignore_errors=True)
+        raise
 
 
 def _uncertainty_table(cal: Calibration) -> str:

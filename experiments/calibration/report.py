@@ -4,7 +4,6 @@ every command that reports (the comparison table of several methods is hec.calib
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -12,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from hec.calibration.loo import format_loo, loo_to_dict
-from hec.estimator.common.files import write_atomic
+from hec.estimator.common.files import check_output_file, write_atomic
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.geometry.lie import pose_minus, so3_log
 from hec.estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
@@ -322,18 +321,8 @@ Result = Calibration | MethodFailure
 
 
 def check_json_path(path: Path) -> None:
-    """Raise FileNotFoundError / IsADirectoryError / PermissionError now rather than after the work
-    (a folder that does not exist, a folder given, one that cannot be written: read-only, full)."""
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"{path}: folder {path.parent} does not exist")
-    if path.is_dir():
-        raise IsADirectoryError(f"{path}: is a folder, expected a JSON file name")
-    probe = path.with_name(f".{path.name}.probe-{os.getpid()}")
-    try:
-        probe.write_bytes(b"{}")
-    except OSError as exc:
-        raise PermissionError(f"{path}: cannot write in {path.parent} ({exc.strerror})") from None
-    probe.unlink()
+    """check_output_file for a JSON file: refused now rather than after the work."""
+    check_output_file(path, "a JSON file name")
 
 
 def write_json(path: Path, data: dict) -> Path:

@@ -139,11 +139,15 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
     else:
         why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
     best = min(solved, key=lambda c: c.residual_rms_px, default=None)
-    best_text = (
-        f"the best closed-form mount leaves {px_text(best.residual_rms_px)} RMS"
-        if best is not None
-        else f"none of {', '.join(CHECK_METHODS)} finds a mount"
-    )
+    best_text = f"none of {', '.join(CHECK_METHODS)} finds a mount"
+    if best is not None:
+        from hec.estimator.solve.misfit import disagreeing_frames
+
+        best_text = f"the best closed-form mount leaves {px_text(best.residual_rms_px)} RMS"
+        frames = ", ".join(
+            f"frame {f} ({1e3 * m:.0f} mm)" for f, m in disagreeing_frames(problem, best.T_flange_cam)
+        )
+        why += f"; the frames that disagree most, by how far from the others each puts the board: {frames}"
     raise CalibrationInputError(
         f"the robot poses do not fit the images at any mount ({best_text}; {MAX_CORNER_RMS_PX:.0f} px RMS is "
         f"the most any model explains); {why}"

@@ -4,8 +4,8 @@ cause and a fix. The full report is hec.calibration.report.format_calibration.
 
 The verdict reads three things the calibration already computed:
 
-- the fit: a residual no model explains (MISFIT_RESIDUAL_PX), or a method that says its result does
-  not fit, is "redo";
+- the fit: a residual no model explains (MISFIT_RESIDUAL_PX, or far above the data's noise:
+  hec.estimator.solve.misfit), or a method that says its result does not fit, is "redo";
 - the observability: a direction of the mount the views do not determine is "redo";
 - the leave-one-frame-out prediction against its floor (what the held-out views' own noise alone
   gives): above REDO_RATIO x the floor "redo", above hec.calibration.loo.MISFIT_RATIO x "usable".
@@ -47,7 +47,9 @@ class Verdict:
 def verdict(cal: Calibration) -> Verdict:
     """The verdict of one calibration (module doc)."""
     redo, usable, good = [], [], []
-    if cal.residual_rms_px > MISFIT_RESIDUAL_PX:
+    if "misfit" in cal.diagnostics:
+        redo.append("the result does not fit its data (see the findings)")
+    elif cal.residual_rms_px > MISFIT_RESIDUAL_PX:
         redo.append(f"the result does not fit the images ({cal.residual_rms_px:.0f} px RMS residual)")
     report = cal.diagnostics.get("observability")
     if report is not None and not report.observable:

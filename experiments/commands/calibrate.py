@@ -25,6 +25,7 @@ from hec.calibration.report import (
 )
 from hec.calibration.run import check_poses_fit, run_methods
 from hec.calibration.summary import format_summary
+from hec.estimator.common.files import refuse_writing_over_inputs
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.io.calibration_file import (
@@ -33,7 +34,7 @@ from hec.estimator.io.calibration_file import (
     covariance_field,
     pose_field,
 )
-from hec.estimator.io.dataset import load_dataset
+from hec.estimator.io.dataset import dataset_inputs, load_dataset
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.batch import one_blas_thread
@@ -230,6 +231,7 @@ def calibrate_dataset(
     Raises CalibrationInputError and the other input errors."""
     if json_out is not None:
         check_json_path(json_out)
+        refuse_writing_over_inputs(json_out, dataset_inputs(dataset_path), "--json")
     if report_dir is not None:
         from hec.calibration.html_report import check_report_dir
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hec.estimator.common.files import os_error_text
 from hec.estimator.geometry.transforms import rpy_from_transform, xyz_quat_from_transform
 from hec.support import interrupts
 
@@ -37,11 +38,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         print(f"hec: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        where = f" ({exc.filename})" if exc.filename else ""
-        print(
-            f"hec: error: cannot write {args.out}: {exc.strerror or exc}{where}; nothing written",
-            file=sys.stderr,
-        )
+        print(f"hec: error: cannot write {args.out}: {os_error_text(exc)}; nothing written", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         print(f"\ninterrupted: nothing written to {args.out}", file=sys.stderr)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hec.commands.verbs import HELP
-from hec.estimator.common.files import write_atomic
+from hec.estimator.common.files import check_output_file, refuse_writing_over_inputs, write_atomic
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.geometry.transforms import transform_from_xyz_quat
 from hec.estimator.io.calibration_file import (
@@ -76,6 +76,11 @@ def _dataset_extrinsics(folder: Path) -> np.ndarray | None:
 def link_optical(args: argparse.Namespace, cal: CalibrationFile) -> tuple[np.ndarray, str]:
     """T_link_optical (4, 4) and where it came from, in words (module doc)."""
     if args.link_optical_values is not None:
+        if not np.all(np.isfinite(args.link_optical_values)):
+            raise ValueError(
+                "--link-optical-values: every value must be a finite number, got "
+                + " ".join(f"{v:g}" for v in args.link_optical_values)
+            )
         x, y, z, qx, qy, qz, qw = args.link_optical_values
         q = np.array([qw, qx, qy, qz])
         if not np.isclose(np.linalg.norm(q), 1.0, atol=1e-6):
@@ -102,9 +107,14 @@ def link_optical(args: argparse.Namespace, cal: CalibrationFile) -> tuple[np.nda
 
 
 def run(args: argparse.Namespace) -> int:
-    """`hec export`: print the export or write it to --out (temporary file, then rename)."""
+    """`hec export`: print the export or write it to --out (temporary file, then rename; never over
+    one of its inputs)."""
+    if args.out is not None:
+        check_output_file(args.out)
+        inputs = {"calibration file": args.calibration, "--link-optical file": args.link_optical}
+        refuse_writing_over_inputs(args.out, inputs)
     cal = read_calibration(args.calibration, args.method)
-    child = args.child or DEFAULT_CHILD.get(args.to, OPTICAL_FRAME)
+    child = args.child if args.child is not None else DEFAULT_CHILD.get(args.to, OPTICAL_FRAME)
     export = Export(cal, args.parent, child)
     if export.composes_link:
         T, source = link_optical(args, cal)

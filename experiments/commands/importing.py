@@ -17,6 +17,7 @@ import numpy as np
 
 from hec.commands import arguments
 from hec.commands.verbs import HELP
+from hec.estimator.common.files import refuse_writing_over_inputs
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS, arm_dict
 from hec.estimator.geometry.transforms import invert
@@ -134,19 +135,28 @@ def run(args: argparse.Namespace) -> int:
     """Import, then (image layouts) detect and check the pose convention; prints what it did."""
     from hec.estimator.io.importer import import_images, import_pose_pairs, provenance
 
+    inputs = {"source": args.source, "pose file": args.poses, "depth folder": args.depth}
+    inputs |= {"joint file": args.joints, "intrinsics file": args.intrinsics}
+    refuse_writing_over_inputs(args.out, inputs)
     try:
         if args.layout == "easy_handeye2":
             pairs = _directed(read_easy_handeye_samples(args.source), args)
             board = find_board(args.board) if args.board else None
             intrinsics = _intrinsics(args, required=False)
+            check = None
+            if not args.no_check:
+                check = check_pose_pair_directions(pairs, args.pose_direction, args.tracking_direction)
+                if check.mistake:
+                    raise ValueError(
+                        f"{args.source}: {check.message}; nothing written (--no-check imports them as stated)"
+                    )
             out = import_pose_pairs(
                 pairs, args.out, provenance(args.layout, [args.source]), board, intrinsics, args.force
             )
             print(f"imported {len(pairs)} pose pairs (robot T_base_flange, tracking T_cam_board) into {out}")
             print("observations: pose_pairs.json (imported; nothing regenerates them)")
-            if not args.no_check:
-                check = check_pose_pair_directions(pairs, args.pose_direction, args.tracking_direction)
-                print(f"convention check: {check}")
+            if check is not None:
+                print(f"convention check: {check.message}")
             return 0
         if args.board is None:
             raise ValueError("--board is needed to import images: the board name or file they show")
@@ -188,6 +198,11 @@ def run(args: argparse.Namespace) -> int:
             extra["depth_noise"] = depth_noise.to_dict()
         if arm is not None and ARMS.get(arm.name) != arm:
             extra["robot_dh"] = arm_dict(arm)
+        checks: list[str] = []
+
+        def check(folder: Path) -> None:  # on the complete dataset before it is moved into place
+            checks.extend(check_import(folder, args.quiet, args.out))
+
         out = import_images(
             frames,
             args.out,
@@ -197,13 +212,17 @@ def run(args: argparse.Namespace) -> int:
             provenance(args.layout, sources, frames, joint_file),
             extra,
             args.force,
+            None if args.no_check else check,
         )
     except IMPORT_ERRORS as exc:
         raise ValueError(str(exc)) from None
     print(frames.pairing.describe())
     for note in frames.notes:
         print(f"note: {note}")
-    depth = sum(d is not None for d in frames.depths)
+    depth = sum(bool(row["depth"]) for row in load_dataset(out).rows)
+    empty = sum(d is not None for d in frames.depths) - depth
+    if empty:
+        print(f"note: {empty} depth images hold no depth (every pixel 0): those frames are imported without")
     joints = "" if frames.joints is None else f", {frames.joints.shape[1]} joints each,"
     poses = (
         f"flange poses computed from the joints with {arm.name}'s kinematics"
@@ -211,9 +230,8 @@ def run(args: argparse.Namespace) -> int:
         else f"robot poses read as {_describe(frames.convention)}"
     )
     print(f"imported {len(frames.images)} images ({depth} with depth){joints} with {poses} into {out}")
-    if not args.no_check:
-        for line in check_import(out, args.quiet):
-            print(line)
+    for line in checks:
+        print(line)
     return 0
 
 
@@ -265,7 +283,10 @@ def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | 
         fx, fy, cx, cy, width, height = args.camera
         if width != int(width) or height != int(height):
             raise ValueError(f"--camera: WIDTH and HEIGHT are whole pixels, got {width:g} {height:g}")
-        return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
+        try:
+            return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
+        except ValueError as exc:
+            raise ValueError(f"--camera: {exc}") from None
     if required:
         raise ValueError("the camera is needed to import images: give --intrinsics FILE or --camera")
     return None
@@ -283,9 +304,10 @@ def _first_image_size(folder: Path) -> tuple[int, int] | None:
     return None
 
 
-def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
+def check_import(dataset_path: Path, quiet: bool = False, shown_as: Path | None = None) -> list[str]:
     """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention,
-    its board file and its joints (if any): the lines to print."""
+    its board file and its joints (if any): the lines to print. shown_as: the folder the dataset
+    will be at, for the lines (the check runs before it is moved there)."""
     from hec.estimator.io.convention_check import check_board_layout, check_pose_convention
     from hec.estimator.solve.problem import build_problem, dataset_robot_noise
     from hec.estimator.targets.qr import DetectorSettings
@@ -296,7 +318,8 @@ def check_import(dataset_path: Path, quiet: bool = False) -> list[str]:
     found = sum(o.problem is None for o in observations)
     points = sum(len(m.corners_px) for o in observations for m in o.markers)
     lines = [
-        f"detected the board in {found} of {len(observations)} frames ({points} points); cached in {cache}"
+        f"detected the board in {found} of {len(observations)} frames ({points} points); cached in "
+        f"{(shown_as or dataset_path) / cache.name}"
     ]
     record = dataset.metadata["provenance"]
     stated = PoseConvention(**record["pose_convention"])

@@ -25,7 +25,7 @@ import numpy as np
 
 from hec.commands import arguments
 from hec.commands.verbs import HELP
-from hec.estimator.common.files import write_atomic
+from hec.estimator.common.files import check_output_file, refuse_writing_over_inputs, write_atomic
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
 from hec.estimator.geometry.transforms import invert
@@ -229,7 +229,12 @@ def calibrated_cell(args: argparse.Namespace) -> PlanningCell:
 
 
 def run(args: argparse.Namespace) -> int:
+    """`hec plan`: the views, printed and written to --out (checked first; never over an input)."""
     count, target = _count_and_target(args)
+    check_output_file(args.out, "a waypoint CSV file name")
+    inputs = {"calibration file": args.calibration, "cell file": args.cell, "dataset": args.dataset}
+    scenario = None if args.scenario is None or not Path(args.scenario).exists() else Path(args.scenario)
+    refuse_writing_over_inputs(args.out, inputs | {"scenario file": scenario})
     cell = calibrated_cell(args) if args.calibration is not None else simulated_cell(args)
     nominal = (cell.intrinsics, cell.T_flange_cam, cell.T_base_board, cell.noise)
     rng = np.random.default_rng(args.seed)
@@ -271,6 +276,12 @@ def run(args: argparse.Namespace) -> int:
         f"{name} predict {reference_mm:.3f} mm / {reference_deg:.4f} deg (RSS 1-sigma, "
         f"corners at {args.corner_sigma_px:g} px)"
     )
+    if target is None and len(steps) < count:
+        print(
+            f"note: {len(steps)} views, not the {count} asked: only {len(usable)} of the {args.candidates} "
+            f"candidates hold the whole board in view and {len(usable) - len(steps)} of those fail the "
+            "cell's checks (reach, joint limits, workspace, collisions); give more --candidates for more"
+        )
     write_atomic(args.out, waypoint_csv(waypoints))
     print(f"wrote {args.out}: {len(waypoints)} waypoints")
     return 0

@@ -18,6 +18,10 @@ SCALE_BAR_M = 0.1
 # The smallest printed feature (a QR module, a tag bit, a square) drawn narrower than this prints
 # too coarse to keep its corners exact.
 MIN_FEATURE_PX = 4
+# No printer takes a sheet longer than this (A0 is 1.19 m; wide-format rolls are up to about 1.6 m
+# wide), and a sheet of more pixels than this does not fit in memory (one byte a pixel).
+MAX_SHEET_M = 2.0
+MAX_SHEET_PIXELS = 1e9
 
 
 # Lettering and bar: text this tall, this far from the sheet's bottom and side edges (inside most
@@ -31,6 +35,7 @@ def printable_board(board: Target, dpi: float) -> np.ndarray:
     """(H, W) uint8 sheet at ``dpi`` with the board name and a 100 mm scale bar on one line in the
     bottom margin, below every marker and its margin (ValueError when that margin is too narrow)."""
     px_per_m = dpi / 0.0254
+    _check_sheet_size(board, dpi)
     feature_px = board.feature_m * px_per_m
     if not feature_px >= MIN_FEATURE_PX:
         needed = MIN_FEATURE_PX / board.feature_m * 0.0254
@@ -63,6 +68,23 @@ def printable_board(board: Target, dpi: float) -> np.ndarray:
         sheet, "100 mm", (x1 - bar_label_w - edge, baseline), _FONT, font_scale, 0, thickness, cv2.LINE_AA
     )
     return sheet
+
+
+def _check_sheet_size(board: Target, dpi: float) -> None:
+    """ValueError when the board's sheet is larger than any printer's, or too many pixels at dpi."""
+    width_m, height_m = (float(v) for v in board.size_m)
+    size = f"board '{board.name}' is {width_m:g} x {height_m:g} m (its size_m)"
+    if not max(width_m, height_m) <= MAX_SHEET_M:
+        raise ValueError(
+            f"{size}: no printer takes a sheet over {MAX_SHEET_M:g} m; check size_m, which is in metres"
+        )
+    pixels = width_m * height_m * (dpi / 0.0254) ** 2
+    if pixels > MAX_SHEET_PIXELS:
+        most = 0.0254 * (MAX_SHEET_PIXELS / (width_m * height_m)) ** 0.5
+        raise ValueError(
+            f"{size}: at {dpi:g} dpi its sheet is {pixels / 1e9:.1f} gigapixels; give --dpi {most:.0f} "
+            "or less"
+        )
 
 
 def save_printable_board(board: Target, path: str | Path, dpi: float = 300.0) -> Path:

@@ -259,6 +259,11 @@ def run(
         sigma_target(args)
         _check_out(args)
         if args.sim:
+            if args.cell is not None:
+                raise RecordError(
+                    f"--cell {args.cell}: describes the real cell; with --sim the scenario (--scenario) is "
+                    "the cell: leave --cell out, or drop --sim to record on the real cell"
+                )
             return _record_sim(args)
         return _record_hardware(args, camera_context, read_line)
     except user_errors as exc:

@@ -28,9 +28,7 @@ def _user_errors() -> tuple[type[Exception], ...]:
         DatasetError,
         ObservationCacheError,
         CalibrationInputError,
-        FileExistsError,
         ValueError,
-        OSError,  # a file that cannot be read or written (missing, read-only or full file system)
     )
 
 
@@ -230,4 +228,9 @@ def run(args: argparse.Namespace) -> int:
         return run_simulate(args)
     except user_errors as exc:
         print(f"hec: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file that cannot be read or written (missing, read-only or full file system)
+        from hec.estimator.common.files import os_error_text
+
+        print(f"hec: error: {os_error_text(exc)}", file=sys.stderr)
         return 2

@@ -70,13 +70,16 @@ def format_verification(v: Verification) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """`hec verify`: the report; 0 consistent, 1 moved, 2 when the calibration has no covariance."""
     from hec.calibration.report import check_json_path, write_json
-    from hec.estimator.io.dataset import load_dataset
+    from hec.estimator.common.files import refuse_writing_over_inputs
+    from hec.estimator.io.dataset import dataset_inputs, load_dataset
     from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
     from hec.estimator.solve.verify import format_verdict, verification_problem, verify_mount
     from hec.support.detection import cached_or_detected
 
     if args.json is not None:
         check_json_path(args.json)
+        inputs = {"calibration file": args.calibration} | dataset_inputs(args.dataset)
+        refuse_writing_over_inputs(args.json, inputs, "--json")
     cal = read_calibration(args.calibration, args.method)
     dataset = load_dataset(args.dataset)
     pose_frame = dataset.metadata.get("pose_frame", "flange")

@@ -34,6 +34,7 @@ from tqdm import tqdm
 
 from hec.estimator.common.files import write_atomic
 from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.io.lock import FolderLockedError, acquire_lock, release_lock
 from hec.sweep.config import SweepConfig
 from hec.sweep.parameters import PARAMETERS, RENDER, parameter_columns
 from hec.sweep.rows import (
@@ -339,7 +340,36 @@ def _run_sweep(
     keep_datasets: bool,
     progress: bool,
 ) -> SweepOutcome:
-    """run_sweep once connected: prepare the folder, run what is not done, compact the rows."""
+    """run_sweep once connected: lock the folder (a run and its --resume at once would lose rows),
+    prepare it, run what is not done, compact the rows."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise SweepError(f"{out_dir}: exists and is not a folder")
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        try:
+            note = acquire_lock(out_dir, "a sweep")
+        except FolderLockedError as exc:
+            raise SweepError(str(exc)) from None
+        if note is not None:
+            print(f"note: {note}", file=sys.stderr)
+        return _run_locked(config, out_dir, client, workers, resume, keep_datasets, progress)
+    finally:
+        release_lock(out_dir)
+        if created and not any(out_dir.iterdir()):
+            out_dir.rmdir()
+
+
+def _run_locked(
+    config: SweepConfig,
+    out_dir: Path,
+    client: Any,
+    workers: int | None,
+    resume: bool,
+    keep_datasets: bool,
+    progress: bool,
+) -> SweepOutcome:
+    """_run_sweep with the folder locked."""
     done = prepare_out_dir(config, out_dir, resume)
     keep = out_dir / DATASETS_DIR if keep_datasets and config.fidelity == RENDER else None
     if keep is not None:
