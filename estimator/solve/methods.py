@@ -147,7 +147,7 @@ def run_method(
         )
     noise = result.diagnostics.get("noise")
     seen = camera_problem(name, problem, noise)
-    report = observability(seen, calibration_state(problem, result))
+    report = observability(seen, calibration_state(problem, result), result.covariance)
     result.diagnostics["observability"] = report
     result.warnings.extend(w for w in report.warnings if w not in result.warnings)
     return result
