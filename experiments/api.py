@@ -27,7 +27,13 @@ from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.batch import one_blas_thread
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.method_names import DEFAULT_METHOD
-from hec.estimator.solve.problem import CalibrationProblem, build_problem, dataset_arm, dataset_robot_noise
+from hec.estimator.solve.problem import (
+    CalibrationProblem,
+    build_problem,
+    dataset_arm,
+    dataset_arm_name,
+    dataset_robot_noise,
+)
 from hec.support.detection import cached_or_detected
 
 # hec.API lists them too, for hec's lazy __getattr__ (tests/test_api.py checks the two agree)
@@ -154,4 +160,5 @@ def _problem(dataset: Dataset, observations: list[FrameObservations]) -> Calibra
         dataset_robot_noise(dataset),
         True,
         dataset_arm(dataset),
+        dataset_arm_name(dataset),
     )

@@ -56,7 +56,7 @@ def dataset_arm(dataset: Dataset) -> ReportedArm | None:
     all have its six joints, or the poses are the controller's TCP rather than the flange
     (kinematics to tool0 then miss the TCP offset)."""
     meta = dataset.metadata
-    name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
+    name = dataset_arm_name(dataset)
     if meta.get("pose_frame", "flange") != "flange":
         return None
     if "robot_dh" in meta:  # an arm imported with its own DH table
@@ -75,6 +75,14 @@ def dataset_arm(dataset: Dataset) -> ReportedArm | None:
     return ReportedArm(
         kinematics, {i: np.asarray(row["joints"], float) for i, row in enumerate(dataset.rows)}
     )
+
+
+def dataset_arm_name(dataset: Dataset) -> str | None:
+    """The arm the dataset declares (dataset.json 'robot_model', or a simulation's scenario robot),
+    known to hec or not; None when it names none."""
+    meta = dataset.metadata
+    name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
+    return None if name is None else str(name)
 
 
 def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
@@ -169,7 +177,8 @@ class CalibrationProblem:
     exp(s) (tx x + ty y) for a point (x, y, z) in the camera frame (a depth-to-colour
     registration turned by about (ty, -tx) radians about the camera's x and y; none by
     default). kinematics: the nominal model the reported poses were computed with (every
-    frame then has its joints), or None."""
+    frame then has its joints), or None. arm_name: the arm the dataset declares (named in
+    warnings), or None."""
 
     intrinsics: CameraIntrinsics
     board: Target
@@ -181,6 +190,7 @@ class CalibrationProblem:
     board_bend_m: tuple[float, float] = (0.0, 0.0)
     depth_tilt: tuple[float, float] = (0.0, 0.0)
     kinematics: URKinematics | None = None
+    arm_name: str | None = None
 
     @property
     def points_per_marker(self) -> int:
@@ -256,12 +266,14 @@ def build_problem(
     robot_noise: RobotPoseNoise | None = None,
     use_depth: bool = True,
     arm: ReportedArm | None = None,
+    arm_name: str | None = None,
 ) -> CalibrationProblem:
     """Validate observations and turn them into whitened measurements.
 
     Frames with a problem or without markers are left out (listed in ``rejected``). With arm, the
     frames keep their joints and the problem the arm's kinematics (unless a frame's joints are
-    missing or not finite).
+    missing or not finite). arm_name: the arm the dataset declares (dataset_arm_name; default
+    arm's).
     Raises CalibrationInputError for NaNs, markers that are not on the board, or
     fewer than MIN_FRAMES usable frames.
     """
@@ -300,6 +312,7 @@ def build_problem(
         marker_ids,
         rejected,
         kinematics=kinematics,
+        arm_name=arm_name or (None if arm is None else arm.kinematics.name),
     )
 
 

@@ -151,7 +151,10 @@ def _format_uncertainty(cal: Calibration) -> list[str]:
         lines.append("Cramer-Rao bound: not finite, the mount is not observable from these views")
     if cal.depth_scale is not None:
         sigma = "" if cal.depth_scale_sigma is None else f" +- {cal.depth_scale_sigma:.6f}"
-        lines.append(f"depth scale: {cal.depth_scale:.6f}{sigma} (true depth = scale x measured)")
+        lines.append(
+            f"depth scale: {cal.depth_scale:.6f}{sigma} (measured depth = scale x true depth: divide "
+            "measured depths by it)"
+        )
     return lines
 
 

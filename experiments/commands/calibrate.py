@@ -46,6 +46,7 @@ from hec.estimator.solve.problem import (
     CalibrationProblem,
     build_problem,
     dataset_arm,
+    dataset_arm_name,
     dataset_robot_noise,
 )
 from hec.support.detection import cached_or_detected
@@ -249,7 +250,13 @@ def calibrate_dataset(
     if not settings.use_depth:
         observations = without_depth(observations)
     problem = build_problem(
-        observations, dataset.board, dataset.intrinsics, noise, settings.use_depth, dataset_arm(dataset)
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        noise,
+        settings.use_depth,
+        dataset_arm(dataset),
+        dataset_arm_name(dataset),
     )
     _note_ignored_options(settings)
     check_poses_fit(dataset, problem)
