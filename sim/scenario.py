@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
 from hec.estimator.common.models import models_dir
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_rpy
 from hec.estimator.io.tomlfile import Section, read_toml, validation_problems
@@ -66,6 +67,22 @@ class MountSettings(PoseSettings):
     of the flange, looking along the tool axis."""
 
     translation_m: Vector3 = (0.0, 0.006, 0.040)
+
+
+class StandSettings(PoseSettings):
+    """T_base_cam of the eye-to-hand set-up: the camera optical frame on its stand, in the base
+    frame; the unknown to calibrate there. Default: 1.25 m above the floor and 0.93 m out from the
+    wall, looking back toward the wall and 30 degrees down at where the arm presents the board."""
+
+    translation_m: Vector3 = (0.15, -0.2, 0.933)
+    rotation_rpy_deg: Vector3 = (150.0, 0.0, 0.0)
+
+
+class BoardMountSettings(PoseSettings):
+    """T_flange_board of the eye-to-hand set-up: the board frame in the flange (tool0) frame, its
+    printed face out along the tool axis. Default: 30 mm out from the flange, a little off centre."""
+
+    translation_m: Vector3 = (0.005, 0.01, 0.03)
 
 
 class BoardSettings(PoseSettings):
@@ -274,12 +291,23 @@ class TrajectorySettings(Section):
         return self
 
 
+# The keys only the eye-to-hand set-up reads (Scenario.to_dict leaves them out of an eye-in-hand one).
+EYE_TO_HAND_KEYS = ("setup", "stand", "board_mount")
+
+
 class Scenario(Section):
+    """setup: "eye-in-hand" (the camera on the flange at mount, the board fixed at board's pose) or
+    "eye-to-hand" (the camera fixed at stand, the board on the flange at board_mount; board's
+    definition is still the board's, its pose there is not used)."""
+
     robot: Literal["ur5", "ur5e"] = "ur5"
     seed: int = Field(0, ge=0)
+    setup: Literal["eye-in-hand", "eye-to-hand"] = EYE_IN_HAND
     camera: CameraSettings = CameraSettings()
     mount: MountSettings = MountSettings()
     board: BoardSettings = BoardSettings()
+    stand: StandSettings = StandSettings()
+    board_mount: BoardMountSettings = BoardMountSettings()
     noise: NoiseSettings = NoiseSettings()
     trajectory: TrajectorySettings = TrajectorySettings()
     errors: ModelErrors = ModelErrors()
@@ -295,11 +323,19 @@ class Scenario(Section):
 
     def to_dict(self) -> dict:
         """The settings as plain JSON values. Without model errors (the ideal cell) the 'errors'
-        table is left out, so datasets of the ideal cell read as they did before it existed."""
+        table is left out, so datasets of the ideal cell read as they did before it existed; so are the
+        eye-to-hand keys (EYE_TO_HAND_KEYS) of an eye-in-hand scenario."""
         data = self.model_dump(mode="json")
         if self.errors == ModelErrors():
             del data["errors"]
+        if self.setup == EYE_IN_HAND:
+            for key in EYE_TO_HAND_KEYS:
+                del data[key]
         return data
+
+    @property
+    def eye_to_hand(self) -> bool:
+        return self.setup == EYE_TO_HAND
 
 
 def resolve_scenario_path(path: str | Path) -> Path:
