@@ -46,6 +46,7 @@ from hec.estimator.solve.problem import (
     build_problem,
     dataset_arm,
     dataset_robot_noise,
+    dataset_setup,
 )
 from hec.support.detection import cached_or_detected
 
@@ -247,7 +248,13 @@ def calibrate_dataset(
     if not settings.use_depth:
         observations = without_depth(observations)
     problem = build_problem(
-        observations, dataset.board, dataset.intrinsics, noise, settings.use_depth, dataset_arm(dataset)
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        noise,
+        settings.use_depth,
+        dataset_arm(dataset),
+        dataset_setup(dataset),
     )
     _note_ignored_options(settings)
     check_poses_fit(dataset, problem)
@@ -260,7 +267,7 @@ def calibrate_dataset(
         for line in convention_lines(dataset, problem, [MethodFailure(settings.method, str(exc))]):
             print(line)
         raise
-    T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
+    T_true = None if dataset.ground_truth is None else dataset.ground_truth.hand_eye
     if settings.verbose or settings.method == ALL_METHODS:
         _print_header(dataset, problem, observations, settings, source, noise_source)
     if settings.method == ALL_METHODS:
