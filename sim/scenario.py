@@ -349,14 +349,38 @@ def resolve_scenario_path(path: str | Path) -> Path:
 
 def load_scenario(path: str | Path | None) -> Scenario:
     """Read and validate a scenario file; a name of models/scenarios/ without .toml ("realistic")
-    reads that one; None gives the default scenario."""
+    reads that one; None gives the default scenario. A file with the key based_on (a scenario name
+    or file, relative to it) holds only what it changes in that one (tables merged key by key)."""
     if path is None:
         return Scenario()
     path = resolve_scenario_path(path)
+    return scenario_from_dict(_scenario_data(path, ()), source=str(path), base_dir=path.parent)
+
+
+def _scenario_data(path: Path, seen: tuple[Path, ...]) -> dict:
+    """A scenario file's keys, merged over those of the scenario it is based_on (seen: the files
+    that led here, for a circle)."""
     data = read_toml(path, ScenarioError, "scenario")
     if "base_dir" in data:
         raise ScenarioError(f"{path}: key 'base_dir': unknown key")
-    return scenario_from_dict(data, source=str(path), base_dir=path.parent)
+    based_on = data.pop("based_on", None)
+    if based_on is None:
+        return data
+    base = Path(based_on) if Path(based_on).is_absolute() else path.parent / based_on
+    base = base if base.exists() else resolve_scenario_path(based_on)
+    if not base.is_file() or base.resolve() in seen:
+        problem = "goes round in a circle" if base.is_file() else "names no scenario file"
+        raise ScenarioError(f"{path}: key 'based_on': {based_on!r} {problem}")
+    return _merged(_scenario_data(base, (*seen, path.resolve())), data)
+
+
+def _merged(base: dict, changes: dict) -> dict:
+    """base with changes applied: tables merged key by key, everything else replaced."""
+    out = dict(base)
+    for key, value in changes.items():
+        both = isinstance(value, dict) and isinstance(base.get(key), dict)
+        out[key] = _merged(base[key], value) if both else value
+    return out
 
 
 def scenario_from_dict(data: dict, source: str = "scenario", base_dir: Path = Path(".")) -> Scenario:

@@ -63,6 +63,7 @@ def solve(
         check_depth(observations)  # before the learning pass, which would fail on another count
     if not needs_learned_noise(name, options):
         result = METHODS[name](problem, options, observations)
+        result.setup = problem.setup
         rejected = result.observations_rejected
         if rejected > MAX_REJECTED_FRACTION * problem.observation_count:
             result.warnings.append(
@@ -75,6 +76,7 @@ def solve(
     adjusted, solved, solved_options = learned_setup(name, problem, options, learned)
     _check_usable(problem, adjusted, solved, learned)
     result = METHODS[name](solved, solved_options, observations)
+    result.setup = problem.setup
     _account_for_learning(problem, adjusted, result, learned)
     return result
 

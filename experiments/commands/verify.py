@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     """`hec verify`: the report; 0 consistent, 1 moved, 2 when the calibration has no covariance."""
     from hec.calibration.report import check_json_path, write_json
     from hec.estimator.io.dataset import load_dataset
-    from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+    from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise, dataset_setup
     from hec.estimator.solve.verify import format_verdict, verification_problem, verify_mount
     from hec.support.detection import cached_or_detected
 
@@ -85,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
             f"{args.calibration}: calibrated with the robot's {cal.pose_frame} poses, but {args.dataset} "
             f"records {pose_frame} poses"
         )
+    setup = dataset_setup(dataset)
+    if setup != cal.setup:
+        raise CalibrationFileError(
+            f"{args.calibration}: an {cal.setup} calibration, but {args.dataset} records an {setup} cell"
+        )
     observations, source = cached_or_detected(dataset, args.quiet)
     if not cal.use_depth:
         from hec.commands.calibrate import without_depth
@@ -97,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         dataset_robot_noise(dataset),
         cal.use_depth,
         dataset_arm(dataset),
+        setup,
     )
     v = verify_mount(
         verification_problem(problem, cal.noise), cal.T_flange_cam, cal.covariance, cal.depth_scale
@@ -114,9 +120,9 @@ def run(args: argparse.Namespace) -> int:
     if dataset.ground_truth is not None:
         from hec.estimator.geometry.transforms import pose_error
 
-        dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.T_flange_cam)
+        dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.hand_eye)
         print(
-            f"vs ground truth: the verification cell's true mount is {1e3 * dt:.3f} mm and "
+            f"vs ground truth: the verification cell's true {cal.hand_eye_name} is {1e3 * dt:.3f} mm and "
             f"{np.degrees(dr):.4f} deg from the calibration"
         )
     if args.json is not None:
