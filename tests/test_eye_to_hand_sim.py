@@ -90,3 +90,37 @@ def test_a_simulated_eye_to_hand_dataset_records_its_set_up_and_its_markers_are_
             corners = dataset.board.marker_corners(marker.marker_id)
             expected = project(T_cam_board, corners, dataset.intrinsics)
             assert np.abs(np.asarray(marker.corners_px) - expected).max() < 0.5
+
+
+def test_an_eye_to_hand_image_folder_imports_with_its_set_up_and_calibrates_to_the_fixed_camera(
+    scenario: Scenario, tmp_path, capsys
+) -> None:
+    from hec.api import calibrate
+    from hec.cli import main
+    from hec.estimator.io.intrinsics_file import write_opencv_intrinsics
+    from hec.estimator.io.layouts import write_folder
+    from hec.estimator.io.pose_file import PoseConvention
+
+    source = load_dataset(simulate(scenario, tmp_path / "rendered", seed=5, progress=False).out_dir)
+    pngs = [(source.root / row["rgb"]).read_bytes() for row in source.rows]
+    poses = np.array([row["T_base_flange"] for row in source.rows])
+    convention = PoseConvention()
+    folder = write_folder(tmp_path / "folder", pngs, poses, convention, None)
+    camera = write_opencv_intrinsics(tmp_path / "camera.yaml", source.intrinsics)
+    argv = [
+        "import",
+        "folder",
+        str(folder / "images"),
+        "--out",
+        str(tmp_path / "imported"),
+        "--board",
+        "hec_8qr",
+    ]
+    argv += ["--intrinsics", str(camera), "--poses", str(folder / "poses.csv"), "--quiet"]
+    assert main([*argv, "--setup", EYE_TO_HAND]) == 0
+    assert "the robot poses fit the stated convention" in capsys.readouterr().out
+    imported = load_dataset(tmp_path / "imported")
+    assert imported.metadata["setup"] == EYE_TO_HAND
+    result = calibrate(imported, "ekf", cross_validate=False)
+    dt, dr = pose_error(result.T_flange_cam, scenario.stand.transform())
+    assert result.setup == EYE_TO_HAND and dt < 1e-3 and np.degrees(dr) < 0.1
