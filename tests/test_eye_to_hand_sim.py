@@ -124,3 +124,24 @@ def test_an_eye_to_hand_image_folder_imports_with_its_set_up_and_calibrates_to_t
     result = calibrate(imported, "ekf", cross_validate=False)
     dt, dr = pose_error(result.T_flange_cam, scenario.stand.transform())
     assert result.setup == EYE_TO_HAND and dt < 1e-3 and np.degrees(dr) < 0.1
+
+
+def test_planned_views_of_a_fixed_camera_are_reachable_and_show_it_the_board(
+    scenario: Scenario, tmp_path
+) -> None:
+    from hec.cli import main
+
+    plan = tmp_path / "planned.csv"
+    argv = ["plan", "--scenario", "eye_to_hand", "--out", str(plan), "--views", "5", "--candidates", "200"]
+    assert main(argv) == 0
+    planned = scenario.model_copy(
+        update={
+            "trajectory": scenario.trajectory.model_copy(update={"kind": "file", "file": str(plan)}),
+            "base_dir": str(tmp_path),
+        }
+    )
+    result = simulate(planned, tmp_path / "data", seed=1, progress=False)
+    assert result.frames == 5 and not result.skipped
+    dataset = load_dataset(result.out_dir)
+    # the board is found in every view (a far, steep view may lose a marker, eye-in-hand as well)
+    assert all(len(o.markers) >= len(dataset.board.marker_ids) - 2 for o in detect(dataset))
