@@ -15,17 +15,19 @@ import yaml
 
 from hec.bench.verify import learned_levels
 from hec.calibration.report import calibration_to_dict
+from hec.calibration.run import check_poses_fit
 from hec.cli import main
-from hec.estimator.common.setups import EYE_TO_HAND
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.lie import pose_plus
 from hec.estimator.geometry.waypoints import eye_to_hand_waypoints
 from hec.estimator.io.calibration_file import CALIBRATION_FORMAT, CALIBRATION_VERSION, read_calibration
 from hec.estimator.io.export import realsense_link_optical
+from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.methods import run_method
 from hec.estimator.solve.noise_learning import learn_noise
-from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.problem import CalibrationInputError, build_problem
 from hec.estimator.solve.verify import VERIFY_VIEWS, spread_views, verification_problem, verify_mount
 from hec.sim.scenario import load_scenario
 from tests.test_export import _from_xyzw, _publisher_transform, _urdf_origin
@@ -114,3 +116,16 @@ def test_verification_tells_a_moved_fixed_camera_from_one_left_alone(calibrated)
         v = verify_mount(verification_problem(problem, levels), cal.T_flange_cam, cal.covariance)
         verdicts[case] = v.moved
     assert verdicts == {"unmoved": False, "1 mm": True, "0.2 deg": True}
+
+
+def test_eye_to_hand_frames_read_as_eye_in_hand_are_refused_naming_the_set_up(tmp_path: Path) -> None:
+    flange = [w.T_base_flange for w in eye_to_hand_waypoints(T_BASE_CAM, T_FLANGE_BOARD, 0.45)]
+    _, observations = _problem(T_BASE_CAM, flange, np.random.default_rng(3))
+    dataset = Dataset(tmp_path, {}, INTRINSICS, BOARD, 0.001, [], None)
+    for setup, named in ((EYE_IN_HAND, EYE_TO_HAND), (EYE_TO_HAND, None)):
+        problem = build_problem(observations, BOARD, INTRINSICS, NOISE.robot, setup=setup)
+        if named is None:
+            check_poses_fit(dataset, problem)  # the right set-up fits
+            continue
+        with pytest.raises(CalibrationInputError, match=f'record "setup": "{named}"'):
+            check_poses_fit(dataset, problem)

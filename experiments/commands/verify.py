@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hec.commands.verbs import HELP
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
 
 if TYPE_CHECKING:
@@ -43,15 +44,17 @@ def _noise_line(cal: CalibrationFile) -> str:
     )
 
 
-def format_verification(v: Verification) -> list[str]:
-    """The report's lines after the header: the shift with its sigma, the test, the verdict."""
+def format_verification(v: Verification, setup: str = EYE_IN_HAND) -> list[str]:
+    """The report's lines after the header: the shift with its sigma, the test, the verdict. setup:
+    the calibration's (eye-to-hand: the fixed camera's shift along the base axes)."""
     from hec.calibration.report import format_vector
     from hec.estimator.solve.verify import format_verdict
 
     sigma = np.sqrt(np.diag(v.covariance_verify))
     mm, deg = v.test_sigma
     lines = [
-        f"mount from these frames alone (board pose free): shift [mm] along flange x y z "
+        f"{'camera' if setup == EYE_TO_HAND else 'mount'} from these frames alone (board pose free): shift "
+        f"[mm] along {'base' if setup == EYE_TO_HAND else 'flange'} x y z "
         f"{format_vector(1e3 * v.delta[:3], '+.3f')} (+- {format_vector(1e3 * sigma[:3], '.3f')}); "
         f"rotation [deg] about camera x y z {format_vector(np.degrees(v.delta[3:]), '+.4f')} "
         f"(+- {format_vector(np.degrees(sigma[3:]), '.4f')})",
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     for line in problem.rejected:
         print(f"  left out: {line}")
     print(_noise_line(cal))
-    print("\n".join(format_verification(v)))
+    print("\n".join(format_verification(v, cal.setup)))
     if dataset.ground_truth is not None:
         from hec.estimator.geometry.transforms import pose_error
 
