@@ -33,6 +33,7 @@ from hec.estimator.solve.problem import (
     dataset_arm,
     dataset_arm_name,
     dataset_robot_noise,
+    dataset_setup,
 )
 from hec.support.detection import cached_or_detected
 
@@ -146,7 +147,7 @@ def write_report(
         The page written.
     """
     observations = detect(dataset) if observations is None else observations
-    T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
+    T_true = None if dataset.ground_truth is None else dataset.ground_truth.hand_eye
     return write_calibration_report(
         Path(directory), dataset, _problem(dataset, observations), calibration, T_true
     )
@@ -160,5 +161,6 @@ def _problem(dataset: Dataset, observations: list[FrameObservations]) -> Calibra
         dataset_robot_noise(dataset),
         True,
         dataset_arm(dataset),
-        dataset_arm_name(dataset),
+        arm_name=dataset_arm_name(dataset),
+        setup=dataset_setup(dataset),
     )

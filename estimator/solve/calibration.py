@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hec.estimator.common.setups import EYE_IN_HAND, HAND_EYE_NAMES
 from hec.estimator.geometry.lie import pose_minus, so3_right_jacobian_inverse
 from hec.estimator.geometry.transforms import transform_points
 from hec.estimator.solve.measurement_model import HandEyeState, marker_points, predict_points
@@ -93,6 +94,9 @@ class Calibration:
     observations_used / observations_rejected: markers over all frames that the method used / left
     out (frames without markers are in CalibrationProblem.rejected). diagnostics: at
     least 'iterations' and 'time_s'; 'observability' when computed. warnings: plain words.
+    setup: the problem's; 'eye-to-hand' swaps the unknowns' roles (hec.estimator.solve.setup_roles):
+    T_flange_cam then holds T_base_cam (its covariance's dt along the base axes) and T_base_board
+    T_flange_board.
     """
 
     method: str
@@ -107,6 +111,12 @@ class Calibration:
     depth_scale_sigma: float | None = None
     diagnostics: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    setup: str = EYE_IN_HAND
+
+    @property
+    def hand_eye_name(self) -> str:
+        """What T_flange_cam holds: 'T_flange_cam', or 'T_base_cam' eye-to-hand."""
+        return HAND_EYE_NAMES[self.setup]
 
     @property
     def sigma_translation_mm(self) -> np.ndarray | None:

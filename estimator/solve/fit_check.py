@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from hec.estimator.geometry.lie import pose_minus
 from hec.estimator.solve.measurement_model import predict_frame
 from hec.estimator.solve.noise_learning import LearnedNoise
 from hec.estimator.solve.problem import CalibrationProblem
@@ -33,6 +32,7 @@ from hec.estimator.solve.self_calibration import (
     PRIOR_SIGMA,
     adjusted_problem,
 )
+from hec.estimator.solve.setup_roles import flange_minus
 
 # A group fits badly when its chi-square per degree of freedom at the declared noise exceeds this
 # (its learned sigma is then more than 1.5x the declared one).
@@ -332,7 +332,7 @@ def _kinematic_finding(problem: CalibrationProblem, learned: LearnedNoise, patte
     adjusted = adjusted_problem(problem, learned.theta, learned.theta_names)
     moves = np.array(
         [
-            pose_minus(a.T_base_flange, f.T_base_flange)
+            flange_minus(problem.setup, a.T_base_flange, f.T_base_flange)
             for a, f in zip(adjusted.frames, problem.frames, strict=True)
         ]
     )

@@ -65,6 +65,7 @@ def solve(
         check_depth(observations)  # before the learning pass, which would fail on another count
     if not needs_learned_noise(name, options):
         result = METHODS[name](problem, options, observations)
+        result.setup = problem.setup
         rejected = result.observations_rejected
         if rejected > MAX_REJECTED_FRACTION * problem.observation_count:
             result.warnings.append(
@@ -77,6 +78,7 @@ def solve(
     adjusted, solved, solved_options = learned_setup(name, problem, options, learned)
     _check_usable(problem, adjusted, solved, learned)
     result = METHODS[name](solved, solved_options, observations)
+    result.setup = problem.setup
     _account_for_learning(problem, adjusted, result, learned)
     if name == "seed-ekf":
         check = check_assumptions(result, learned, solved, solved_options)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 from tqdm import tqdm
@@ -20,6 +21,8 @@ from hec.calibration.loo import (
     self_calibrated_model,
 )
 from hec.calibration.report import MethodFailure, Result, add_pick_error
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
+from hec.estimator.geometry.transforms import invert
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.calibration import MethodOptions
@@ -109,11 +112,34 @@ def _loo_models(
     return [declared_model(problem, options)]
 
 
+SETUP_WORDS = {
+    EYE_IN_HAND: "the camera on the flange, the board fixed",
+    EYE_TO_HAND: "the camera fixed in the cell, the board on the flange",
+}
+
+
+def _other_setup_fits(problem: CalibrationProblem) -> str | None:
+    """The other set-up's name when OpenCV's Park method fits the frames in it (each flange pose
+    inverted: hec.estimator.solve.setup_roles) within MAX_CORNER_RMS_PX, else None."""
+    from hec.estimator.solve.baselines import opencv_calibrate
+    from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
+
+    other = EYE_TO_HAND if problem.setup == EYE_IN_HAND else EYE_IN_HAND
+    frames = [replace(f, T_base_flange=invert(f.T_base_flange), joints=None) for f in problem.frames]
+    swapped = replace(problem, frames=frames, setup=other, kinematics=None)
+    try:
+        fits = opencv_calibrate(swapped, MethodOptions(), "opencv-park").residual_rms_px < MAX_CORNER_RMS_PX
+    except CalibrationInputError:
+        return None
+    return other if fits else None
+
+
 def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
     """Fail in seconds, before any estimation, when the robot poses do not fit the images at any mount:
     the best of OpenCV's closed forms (CHECK_METHODS, milliseconds each) leaves MAX_CORNER_RMS_PX or
-    more, or none of them finds a mount at all. The error says why, with the convention check of an
-    imported dataset's pose numbers (hec.estimator.io.convention_check)."""
+    more, or none of them finds a mount at all. The error says why: the other set-up when the poses
+    fit it (an eye-to-hand dataset read as eye-in-hand, or the other way round), else the convention
+    check of an imported dataset's pose numbers (hec.estimator.io.convention_check)."""
     from hec.estimator.solve.baselines import opencv_calibrate
     from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, rotation_spread
     from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
@@ -131,7 +157,13 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
     from hec.estimator.io.convention_check import check_pose_convention, px_text
 
     record = dataset.metadata.get("provenance") or {}
-    if "pose_values" in record:
+    other = _other_setup_fits(problem)
+    if other is not None:
+        why = (
+            f'they fit the {other} set-up ({SETUP_WORDS[other]}): record "setup": "{other}" in '
+            f"{dataset.root / 'dataset.json'} (hec import --setup {other})"
+        )
+    elif "pose_values" in record:
         from hec.estimator.io.pose_file import PoseConvention
 
         stated = PoseConvention(**record["pose_convention"])
