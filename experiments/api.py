@@ -27,7 +27,14 @@ from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.batch import one_blas_thread
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.method_names import DEFAULT_METHOD
-from hec.estimator.solve.problem import CalibrationProblem, build_problem, dataset_arm, dataset_robot_noise
+from hec.estimator.solve.problem import (
+    CalibrationProblem,
+    build_problem,
+    dataset_arm,
+    dataset_arm_name,
+    dataset_robot_noise,
+    dataset_setup,
+)
 from hec.support.detection import cached_or_detected
 
 # hec.API lists them too, for hec's lazy __getattr__ (tests/test_api.py checks the two agree)
@@ -140,7 +147,7 @@ def write_report(
         The page written.
     """
     observations = detect(dataset) if observations is None else observations
-    T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
+    T_true = None if dataset.ground_truth is None else dataset.ground_truth.hand_eye
     return write_calibration_report(
         Path(directory), dataset, _problem(dataset, observations), calibration, T_true
     )
@@ -154,4 +161,6 @@ def _problem(dataset: Dataset, observations: list[FrameObservations]) -> Calibra
         dataset_robot_noise(dataset),
         True,
         dataset_arm(dataset),
+        arm_name=dataset_arm_name(dataset),
+        setup=dataset_setup(dataset),
     )

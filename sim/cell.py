@@ -30,7 +30,7 @@ from hec.sim.noise import apply_depth_models, apply_rgb_models, perturb_flange_p
 from hec.sim.real_camera import RealCamera
 from hec.sim.render import RGBDRenderer
 from hec.sim.scenario import Scenario
-from hec.sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, build_cell
+from hec.sim.scene import CAMERA_NAME, DEPTH_SENSOR_NAME, DepthSensor, EyeToHandMounts, build_cell
 
 # Simulated timing: joint speed while moving and the settle time at each waypoint.
 JOINT_SPEED_RAD_S = 0.5
@@ -61,6 +61,11 @@ class SimCell:
         self.board = scenario.board_definition()
         self.true = draw_true_cell(scenario, self.board, rng)
         self.camera = RealCamera(scenario, self.true)
+        mounts = (
+            EyeToHandMounts(scenario.stand.transform(), scenario.board_mount.transform())
+            if scenario.eye_to_hand
+            else None
+        )
         self.cell = build_cell(
             scenario.robot,
             scenario.mount.transform(),
@@ -70,6 +75,7 @@ class SimCell:
             depth_sensor=depth_sensor,
             kinematics=self.true.kinematics,
             printed_board=self.true.board,
+            eye_to_hand=mounts,
         )
         self._true_corners = self.true.board.true_corners().reshape(-1, 3)
         self.depth_sensor = depth_sensor
@@ -147,7 +153,7 @@ class SimCell:
         hec.sim.noise.waypoint_rng). Returns the frame and its ground truth."""
         rng = self.rng if rng is None else rng
         rgb, depth_true = self.camera.view(*self.render_true(), rng)
-        T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
+        T_cam_board = self.T_cam_board()
         noise = self.scenario.noise
         rgb = apply_rgb_models(self.camera.light(rgb, T_cam_board, rng), noise.rgb, rng)
         k = self.camera.intrinsics
@@ -167,15 +173,39 @@ class SimCell:
 
     def ground_truth(self) -> GroundTruth:
         """The mount and board poses (and the true cell when the scenario has model errors),
-        with empty per-frame lists to fill as frames are taken."""
+        with empty per-frame lists to fill as frames are taken. Eye-to-hand: T_base_cam and
+        T_flange_board."""
         errors = self.true.to_dict() if self.scenario.errors.any_enabled() else None
-        return GroundTruth(self.cell.T_flange_cam, self.cell.T_base_board, self.cell.T_world_base, errors)
+        cell = self.cell
+        if cell.eye_to_hand:
+            return GroundTruth(
+                None,
+                None,
+                cell.T_world_base,
+                errors,
+                T_base_cam=cell.T_base_cam,
+                T_flange_board=cell.T_flange_board,
+            )
+        return GroundTruth(cell.T_flange_cam, cell.T_base_board, cell.T_world_base, errors)
 
     def true_flange_pose(self) -> np.ndarray:
         return forward(self.cell.true_kinematics, self.joints)
 
     def T_base_cam(self) -> np.ndarray:
+        """(4, 4) the camera now: on its stand (eye-to-hand), else on the true flange."""
+        if self.cell.eye_to_hand:
+            return self.cell.T_base_cam
         return self.true_flange_pose() @ self.cell.T_flange_cam
+
+    def T_base_board(self) -> np.ndarray:
+        """(4, 4) the board now: on the true flange (eye-to-hand), else where it is fixed."""
+        if self.cell.eye_to_hand:
+            return self.true_flange_pose() @ self.cell.T_flange_board
+        return self.cell.T_base_board
+
+    def T_cam_board(self) -> np.ndarray:
+        """(4, 4) the board in the camera frame now."""
+        return invert(self.T_base_cam()) @ self.T_base_board()
 
     def render_true(self) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free rgb (H, W, 3) uint8 and depth (H, W) float32 metres from the camera."""
@@ -195,7 +225,7 @@ class SimCell:
         """None if every marker corner is in the image with the margin, faces the camera
         within the allowed angle and is not hidden; else the reason."""
         settings = self.scenario.trajectory
-        T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
+        T_cam_board = self.T_cam_board()
         corners = self._true_corners
         p_cam = corners @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
         if np.any(p_cam[:, 2] <= 0.05):
@@ -230,7 +260,7 @@ class SimCell:
         """The width in pixels of the board's smallest feature (a QR module, a tag bit, a square:
         board.feature_m) where the image shows it smallest, along the board's x or y at any of
         its points: below MIN_MODULE_PX nothing decodes."""
-        T_cam_board = invert(self.T_base_cam()) @ self.cell.T_base_board
+        T_cam_board = self.T_cam_board()
         step = self.board.feature_m * np.eye(3)[:2]
         points = self._true_corners[:, None, :] + np.concatenate([np.zeros((1, 3)), step])[None]
         uv = project(T_cam_board, points.reshape(-1, 3), self.camera.intrinsics).reshape(-1, 3, 2)
@@ -240,7 +270,7 @@ class SimCell:
         """Markers with a corner whose line of sight hits something else first: ID -> what.
         corners_board: (N, 3) board frame, metres; one batch of rays from the camera."""
         origin = (self.cell.T_world_base @ self.T_base_cam())[:3, 3]
-        T_world_board = self.cell.T_world_board
+        T_world_board = self.cell.T_world_base @ self.T_base_board()
         rays = corners_board @ T_world_board[:3, :3].T + T_world_board[:3, 3] - origin
         distance = np.linalg.norm(rays, axis=1)
         n = len(rays)

@@ -22,7 +22,7 @@ def overview_image(cell: SimCell) -> np.ndarray:
     """(960, 1280, 3) uint8 RGB view of the cell from the room, arm at its current joints."""
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-    board_centre = cell.cell.T_world_board[:3, 3]
+    board_centre = (cell.cell.T_world_base @ cell.T_base_board())[:3, 3]
     camera.lookat[:] = board_centre + np.array([0.0, 0.1, 0.25])
     camera.distance, camera.azimuth, camera.elevation = 2.0, 125.0, -22.0
     renderer = RGBDRenderer(cell.model, *OVERVIEW_SIZE)

@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
 from hec.estimator.common.models import models_dir
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_rpy
 from hec.estimator.io.tomlfile import Section, read_toml, validation_problems
@@ -66,6 +67,22 @@ class MountSettings(PoseSettings):
     of the flange, looking along the tool axis."""
 
     translation_m: Vector3 = (0.0, 0.006, 0.040)
+
+
+class StandSettings(PoseSettings):
+    """T_base_cam of the eye-to-hand set-up: the camera optical frame on its stand, in the base
+    frame; the unknown to calibrate there. Default: 1.25 m above the floor and 0.93 m out from the
+    wall, looking back toward the wall and 30 degrees down at where the arm presents the board."""
+
+    translation_m: Vector3 = (0.15, -0.2, 0.933)
+    rotation_rpy_deg: Vector3 = (150.0, 0.0, 0.0)
+
+
+class BoardMountSettings(PoseSettings):
+    """T_flange_board of the eye-to-hand set-up: the board frame in the flange (tool0) frame, its
+    printed face out along the tool axis. Default: 30 mm out from the flange, a little off centre."""
+
+    translation_m: Vector3 = (0.005, 0.01, 0.03)
 
 
 class BoardSettings(PoseSettings):
@@ -274,12 +291,23 @@ class TrajectorySettings(Section):
         return self
 
 
+# The keys only the eye-to-hand set-up reads (Scenario.to_dict leaves them out of an eye-in-hand one).
+EYE_TO_HAND_KEYS = ("setup", "stand", "board_mount")
+
+
 class Scenario(Section):
+    """setup: "eye-in-hand" (the camera on the flange at mount, the board fixed at board's pose) or
+    "eye-to-hand" (the camera fixed at stand, the board on the flange at board_mount; board's
+    definition is still the board's, its pose there is not used)."""
+
     robot: Literal["ur5", "ur5e"] = "ur5"
     seed: int = Field(0, ge=0)
+    setup: Literal["eye-in-hand", "eye-to-hand"] = EYE_IN_HAND
     camera: CameraSettings = CameraSettings()
     mount: MountSettings = MountSettings()
     board: BoardSettings = BoardSettings()
+    stand: StandSettings = StandSettings()
+    board_mount: BoardMountSettings = BoardMountSettings()
     noise: NoiseSettings = NoiseSettings()
     trajectory: TrajectorySettings = TrajectorySettings()
     errors: ModelErrors = ModelErrors()
@@ -295,11 +323,19 @@ class Scenario(Section):
 
     def to_dict(self) -> dict:
         """The settings as plain JSON values. Without model errors (the ideal cell) the 'errors'
-        table is left out, so datasets of the ideal cell read as they did before it existed."""
+        table is left out, so datasets of the ideal cell read as they did before it existed; so are the
+        eye-to-hand keys (EYE_TO_HAND_KEYS) of an eye-in-hand scenario."""
         data = self.model_dump(mode="json")
         if self.errors == ModelErrors():
             del data["errors"]
+        if self.setup == EYE_IN_HAND:
+            for key in EYE_TO_HAND_KEYS:
+                del data[key]
         return data
+
+    @property
+    def eye_to_hand(self) -> bool:
+        return self.setup == EYE_TO_HAND
 
 
 def resolve_scenario_path(path: str | Path) -> Path:
@@ -313,14 +349,38 @@ def resolve_scenario_path(path: str | Path) -> Path:
 
 def load_scenario(path: str | Path | None) -> Scenario:
     """Read and validate a scenario file; a name of models/scenarios/ without .toml ("realistic")
-    reads that one; None gives the default scenario."""
+    reads that one; None gives the default scenario. A file with the key based_on (a scenario name
+    or file, relative to it) holds only what it changes in that one (tables merged key by key)."""
     if path is None:
         return Scenario()
     path = resolve_scenario_path(path)
+    return scenario_from_dict(_scenario_data(path, ()), source=str(path), base_dir=path.parent)
+
+
+def _scenario_data(path: Path, seen: tuple[Path, ...]) -> dict:
+    """A scenario file's keys, merged over those of the scenario it is based_on (seen: the files
+    that led here, for a circle)."""
     data = read_toml(path, ScenarioError, "scenario")
     if "base_dir" in data:
         raise ScenarioError(f"{path}: key 'base_dir': unknown key")
-    return scenario_from_dict(data, source=str(path), base_dir=path.parent)
+    based_on = data.pop("based_on", None)
+    if based_on is None:
+        return data
+    base = Path(based_on) if Path(based_on).is_absolute() else path.parent / based_on
+    base = base if base.exists() else resolve_scenario_path(based_on)
+    if not base.is_file() or base.resolve() in seen:
+        problem = "goes round in a circle" if base.is_file() else "names no scenario file"
+        raise ScenarioError(f"{path}: key 'based_on': {based_on!r} {problem}")
+    return _merged(_scenario_data(base, (*seen, path.resolve())), data)
+
+
+def _merged(base: dict, changes: dict) -> dict:
+    """base with changes applied: tables merged key by key, everything else replaced."""
+    out = dict(base)
+    for key, value in changes.items():
+        both = isinstance(value, dict) and isinstance(base.get(key), dict)
+        out[key] = _merged(base[key], value) if both else value
+    return out
 
 
 def scenario_from_dict(data: dict, source: str = "scenario", base_dir: Path = Path(".")) -> Scenario:

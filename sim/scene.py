@@ -71,6 +71,15 @@ class DepthSensor:
     intrinsics: CameraIntrinsics
 
 
+@dataclass(frozen=True)
+class EyeToHandMounts:
+    """The eye-to-hand cell's frames: the camera on its stand T_base_cam (4, 4) and the board on
+    the flange T_flange_board (4, 4), metres."""
+
+    T_base_cam: np.ndarray
+    T_flange_board: np.ndarray
+
+
 @dataclass
 class CellModel:
     """A compiled cell and the frames it was built with (all SI units). kinematics: the robot's
@@ -86,10 +95,14 @@ class CellModel:
     intrinsics: CameraIntrinsics
     board: Target
     true_kinematics: URKinematics
+    T_base_cam: np.ndarray | None = None
+    T_flange_board: np.ndarray | None = None
 
     @property
-    def T_world_board(self) -> np.ndarray:
-        return self.T_world_base @ self.T_base_board
+    def eye_to_hand(self) -> bool:
+        """Whether the camera stands fixed at T_base_cam and the board rides on the flange at
+        T_flange_board (T_flange_cam and T_base_board then unused)."""
+        return self.T_base_cam is not None
 
     def joint_qpos_addresses(self) -> np.ndarray:
         """Indices into qpos of the six arm joints, in DH order."""
@@ -116,6 +129,7 @@ def build_cell(
     depth_sensor: DepthSensor | None = None,
     kinematics: URKinematics | None = None,
     printed_board: PrintedBoard | None = None,
+    eye_to_hand: EyeToHandMounts | None = None,
 ) -> CellModel:
     """Compile the cell for one scenario.
 
@@ -127,6 +141,8 @@ def build_cell(
     kinematics: the arm's true kinematics when they differ from the robot's nominal DH model
     (link bodies placed by its DH table; its joint offsets are applied to qpos, see
     CellModel.kinematics). printed_board: the board as printed, when not exactly as defined.
+    eye_to_hand: the camera on a stand and the board on the flange instead (T_flange_cam and
+    T_base_board are then not used).
     """
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; choose one of {sorted(ROBOTS)}")
@@ -140,17 +156,32 @@ def build_cell(
     spec.visual.global_.offwidth = max(offscreen_size[0], *(k.width for k in views))
     spec.visual.global_.offheight = max(offscreen_size[1], *(k.height for k in views))
 
-    _add_camera(spec.body(ARM_PREFIX + "flange"), T_flange_cam, intrinsics)
+    T_world_base = _site_pose(spec, "arm_mount")
+    flange = spec.body(ARM_PREFIX + "flange")
+    printed = printed_board or PrintedBoard(board)
+    if eye_to_hand is None:
+        _add_camera(flange, T_flange_cam, intrinsics)
+        _add_board(spec, printed, spec.worldbody, T_world_base @ T_base_board)
+    else:
+        _add_stand_camera(spec, T_world_base @ eye_to_hand.T_base_cam, intrinsics)
+        _add_board(spec, printed, flange, eye_to_hand.T_flange_board)
     if depth_sensor is not None:
         _add_view(
             spec.body("camera_body"), DEPTH_SENSOR_NAME, depth_sensor.T_cam_depth, depth_sensor.intrinsics
         )
-    T_world_base = _site_pose(spec, "arm_mount")
-    _add_board(spec, printed_board or PrintedBoard(board), T_world_base @ T_base_board)
     model = spec.compile()
     true_kinematics = kinematics or ROBOTS[robot]
+    mounts = {} if eye_to_hand is None else vars(eye_to_hand)
     return CellModel(
-        model, ROBOTS[robot], T_world_base, T_base_board, T_flange_cam, intrinsics, board, true_kinematics
+        model,
+        ROBOTS[robot],
+        T_world_base,
+        T_base_board,
+        T_flange_cam,
+        intrinsics,
+        board,
+        true_kinematics,
+        **mounts,
     )
 
 
@@ -171,21 +202,49 @@ def _site_pose(spec: mujoco.MjSpec, name: str) -> np.ndarray:
     return make_transform(site.xmat.reshape(3, 3), site.xpos)
 
 
-def _add_camera(flange: mujoco.MjsBody, T_flange_cam: np.ndarray, k: CameraIntrinsics) -> None:
-    """A D435-sized housing behind the optical centre, and the camera itself."""
-    body = flange.add_body(name="camera_body")
-    _set_pose(body, T_flange_cam)
-    grey = [0.12, 0.12, 0.13, 1.0]
-    # Housing 90 x 25 x 25 mm, its front face 1.5 mm behind the optical centre.
+_CAMERA_GREY = [0.12, 0.12, 0.13, 1.0]
+
+
+def _add_housing(parent: mujoco.MjsBody, T_parent_cam: np.ndarray, collision: dict) -> mujoco.MjsBody:
+    """The camera body at T_parent_cam with a D435-sized housing (90 x 25 x 25 mm, its front face
+    1.5 mm behind the optical centre); collision: its contype and conaffinity."""
+    body = parent.add_body(name="camera_body")
+    _set_pose(body, T_parent_cam)
     body.add_geom(
         name="camera_housing",
         type=mujoco.mjtGeom.mjGEOM_BOX,
         size=[0.045, 0.0125, 0.0125],
         pos=[0.0, 0.0, -0.014],
-        rgba=grey,
-        contype=_ROBOT_CONTYPE,
-        conaffinity=0,
+        rgba=_CAMERA_GREY,
+        **collision,
     )
+    return body
+
+
+def _add_stand_camera(spec: mujoco.MjSpec, T_world_cam: np.ndarray, k: CameraIntrinsics) -> None:
+    """The camera fixed in the cell (eye-to-hand) at T_world_cam, on a post down to the floor
+    (world z up); the arm collides with both."""
+    _add_view(
+        _add_housing(spec.worldbody, T_world_cam, {"contype": 0, "conaffinity": 1}), CAMERA_NAME, np.eye(4), k
+    )
+    x, y, z = T_world_cam[:3, 3]
+    height = z - 0.03
+    if height > 0.0:
+        spec.worldbody.add_geom(
+            name="camera_stand",
+            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+            size=[0.015, height / 2],
+            pos=[x, y, height / 2],
+            rgba=_CAMERA_GREY,
+            contype=0,
+            conaffinity=1,
+        )
+
+
+def _add_camera(flange: mujoco.MjsBody, T_flange_cam: np.ndarray, k: CameraIntrinsics) -> None:
+    """A D435-sized housing behind the optical centre, and the camera itself."""
+    body = _add_housing(flange, T_flange_cam, {"contype": _ROBOT_CONTYPE, "conaffinity": 0})
+    grey = _CAMERA_GREY
     # Bracket from the housing back to the flange plane (visual only).
     depth = float(T_flange_cam[2, 3]) - 0.0265
     if depth > 1e-3:
@@ -233,9 +292,13 @@ def _sheet_texture(board: Target) -> np.ndarray:
         return _SHEET_TEXTURES[key]
 
 
-def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.ndarray) -> None:
+def _add_board(
+    spec: mujoco.MjSpec, printed: PrintedBoard, parent: mujoco.MjsBody, T_parent_board: np.ndarray
+) -> None:
     """The printed sheet as a textured mesh at z = 0 of the board frame (a quad, or a grid when
-    it is scaled or bent), on a backing plate."""
+    it is scaled or bent), on a backing plate, at T_parent_board in parent: the world (the board
+    fixed in the cell; lying face up it gets a table) or the flange (eye-to-hand; its plate then
+    collides with the cell as the camera on the flange does)."""
     board = printed.printed
     rgb = _sheet_texture(board)
     spec.add_texture(
@@ -257,8 +320,9 @@ def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.nda
     else:
         mesh.uservert, mesh.usertexcoord, mesh.userface = _sheet_grid(printed)
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
-    body = spec.worldbody.add_body(name="board")
-    _set_pose(body, T_world_board)
+    body = parent.add_body(name="board")
+    _set_pose(body, T_parent_board)
+    on_flange = parent is not spec.worldbody
     body.add_geom(
         name=BOARD_GEOM,
         type=mujoco.mjtGeom.mjGEOM_MESH,
@@ -277,11 +341,11 @@ def _add_board(spec: mujoco.MjSpec, printed: PrintedBoard, T_world_board: np.nda
         size=[w * sx / 2, h * sy / 2, 0.001],
         pos=[0.0, 0.0, lowest - 0.002],
         rgba=[0.9, 0.9, 0.88, 1.0],
-        contype=0,
-        conaffinity=1,
+        contype=_ROBOT_CONTYPE if on_flange else 0,
+        conaffinity=0 if on_flange else 1,
     )
-    if T_world_board[2, 2] > np.cos(np.radians(5.0)):
-        _add_table(spec, T_world_board[:3, 3] - [0.0, 0.0, 0.003])
+    if not on_flange and T_parent_board[2, 2] > np.cos(np.radians(5.0)):
+        _add_table(spec, T_parent_board[:3, 3] - [0.0, 0.0, 0.003])
 
 
 def _sheet_grid(printed: PrintedBoard) -> tuple[list[float], list[float], list[int]]:

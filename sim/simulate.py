@@ -10,12 +10,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from hec.estimator.geometry.transforms import invert
 from hec.estimator.geometry.waypoints import (
     Waypoint,
     WaypointRejected,
+    eye_to_hand_waypoints,
+    look_at_board,
     paper_waypoints,
     read_waypoint_file,
     rotation_rich_waypoints,
+    translated_waypoints,
 )
 from hec.estimator.io.dataset import DatasetWriter
 from hec.estimator.io.memory import dataset_in_memory
@@ -44,14 +48,24 @@ def scenario_waypoints(scenario: Scenario) -> list[Waypoint]:
     kind = scenario.trajectory.kind
     if kind == "file":
         return read_waypoint_file(scenario.waypoint_file())
-    make = paper_waypoints if kind == "paper" else rotation_rich_waypoints
-    return make(scenario.board.transform(), scenario.mount.transform(), scenario.trajectory.distance_m)
+    distance_m = scenario.trajectory.distance_m
+    if not scenario.eye_to_hand:
+        make = paper_waypoints if kind == "paper" else rotation_rich_waypoints
+        return make(scenario.board.transform(), scenario.mount.transform(), distance_m)
+    T_base_cam, T_flange_board = scenario.stand.transform(), scenario.board_mount.transform()
+    if kind == "paper":
+        head_on = T_base_cam @ invert(look_at_board(0, 0, 0, distance_m)) @ invert(T_flange_board)
+        return translated_waypoints(head_on)
+    return eye_to_hand_waypoints(T_base_cam, T_flange_board, distance_m)
 
 
 def simulation_metadata(scenario: Scenario, seed: int, noise_seed: int) -> dict:
     """dataset.json fields of a simulated dataset: the noise the estimators should assume
-    and what produced it (seed: the true cell's; noise_seed: each frame's noise)."""
+    and what produced it (seed: the true cell's; noise_seed: each frame's noise); an eye-to-hand
+    cell's 'setup'."""
+    setup = {"setup": scenario.setup} if scenario.eye_to_hand else {}
     return {
+        **setup,
         "depth_noise": depth_noise_model(scenario.noise).to_dict(),
         "robot_pose_noise": robot_pose_noise_model(scenario.noise).to_dict(),
         "simulation": {"seed": seed, "scenario": scenario.to_dict(), "noise_seed": noise_seed},

@@ -152,6 +152,20 @@ def test_the_default_output_is_short_and_leads_with_the_verdict(
     assert "inf" not in stdout and "chi-square" not in stdout
 
 
+def test_robot_states_a_frame_off_fail_at_the_check_before_any_estimation(
+    realistic_dataset: Path, tmp_path: Path
+) -> None:
+    """Each frame given the next frame's pose and joints: Park finds no mount at all, the other closed
+    forms a bad one; `hec calibrate` says the poses do not fit (it crashed in the self-calibration)."""
+    from hec.bench.calibrate import unexplained_copy
+
+    shifted = unexplained_copy(realistic_dataset, tmp_path / "shifted")
+    code, stdout, stderr = run_hec(["calibrate", str(shifted), "--quiet"])
+    assert code != 0 and "Traceback" not in stderr, stderr
+    assert "the robot poses do not fit the images at any mount" in stderr, stderr
+    assert "check the pairing of images and poses" in stderr and not stdout
+
+
 def _observation_count(stdout: str) -> int:
     """The marker observations of the problem, from the printed header."""
     return int(re.search(r"problem: \d+ frames, (\d+) marker observations", stdout)[1])

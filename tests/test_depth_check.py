@@ -40,6 +40,20 @@ def test_informative_depths_that_agree_are_used_and_a_pull_is_not() -> None:
     assert slight.informative and slight.p_value < SIGNIFICANCE < slight.p_pull and slight.used, slight
 
 
+def test_every_direction_is_tested_not_only_those_the_depths_inform() -> None:
+    """Depths that inform two directions and pull the mount far along another (beyond the pixels'
+    own uncertainty) disagree: the test covers all six directions."""
+    C_depth = C_PIXELS.copy()
+    C_depth[0, 0] *= 0.5
+    C_depth[1, 1] *= 0.5
+    pulled = _check(8.0 * np.sqrt(np.diag(C_PIXELS)) * np.eye(6)[5], C_depth)
+    assert pulled.informative and pulled.informative_directions == 2 and pulled.dof == 6, pulled
+    assert pulled.p_value < SIGNIFICANCE and pulled.p_pull < SIGNIFICANCE and not pulled.agrees, pulled
+    assert "over 6 directions (2 against what the depths add)" in pulled.describe()
+    # The same depths within the pixels' uncertainty along that direction agree.
+    assert _check(1.0 * np.sqrt(np.diag(C_PIXELS)) * np.eye(6)[5], C_depth).agrees
+
+
 def test_depths_that_add_next_to_nothing_are_tested_against_the_pixels_alone() -> None:
     sigma = np.sqrt(np.diag(C_PIXELS))
     agreeing = _check(0.3 * sigma, 0.99 * C_PIXELS)

@@ -33,6 +33,37 @@ def test_the_documentation_site_builds_strictly(tmp_path: Path) -> None:
     )  # fmt: skip
     assert built.returncode == 0, built.stderr
     assert (tmp_path / "site" / "calibrate" / "index.html").is_file()
+    api = (tmp_path / "site" / "api" / "index.html").read_text()
+    for name in ("load_dataset", "detect", "calibrate", "verdict", "findings", "write_report"):
+        assert f'id="hec.api.{name}"' in api, name  # rendered from the docstrings (mkdocstrings)
+
+
+def test_every_results_page_is_written_by_its_benchmark() -> None:
+    """The pages under docs/pages/results hold measured figures: each names the benchmark command
+    that wrote it (hec.support.results_page), so none is typed by hand."""
+    pages = sorted((PAGES / "results").glob("*.md"))
+    assert pages
+    for page in pages:
+        lines = page.read_text().splitlines()
+        written_by = re.match(r"Written by `(python -m hec\.bench\.|hec )", lines[2])
+        assert lines[0].startswith("# ") and written_by, page
+
+
+def test_the_guides_state_the_thresholds_the_code_uses() -> None:
+    from hec.calibration.loo import MISFIT_RATIO
+    from hec.calibration.run import CHECK_METHODS
+    from hec.calibration.summary import REDO_RATIO
+    from hec.estimator.solve.baselines import MISFIT_RESIDUAL_PX
+    from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
+
+    verdict = (PAGES / "is-my-result-good.md").read_text()
+    assert f"above {MISFIT_RESIDUAL_PX:.0f} px RMS" in verdict
+    assert f"Within {MISFIT_RATIO:g}x the floor" in verdict and f"above {REDO_RATIO:g}x" in verdict
+    assert f"{MISFIT_RATIO:g}x-{REDO_RATIO:g}x" in verdict
+    trouble = " ".join((PAGES / "troubleshooting.md").read_text().split())
+    assert f"more than {MAX_CORNER_RMS_PX:.0f} px RMS" in trouble
+    names = [m.removeprefix("opencv-").capitalize() for m in CHECK_METHODS]
+    assert f"({names[0]}, then {names[1]} and {names[2]})" in trouble
 
 
 def test_nothing_in_the_repository_names_a_round_of_work() -> None:

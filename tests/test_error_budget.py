@@ -14,10 +14,12 @@ from hec.sim.scenario import load_scenario
 from hec.sweep import report
 from hec.sweep.budget import TEXT_FILE, budget_text, has_budget
 from hec.sweep.config import SweepConfigError, cell_scenario, load_config, scenario_defaults
+from hec.sweep.page import paired_cost
 from hec.sweep.parameters import ERROR_SOURCES, error_source_set, error_sources_name
 from hec.sweep.rows import load_rows
 from hec.sweep.runner import run_sweep
 from hec.sweep.summary import summarise
+from tests.hec_cli import run_hec
 
 REALISTIC = models_dir() / "scenarios" / "realistic.toml"
 
@@ -85,6 +87,17 @@ def test_budget_sweep_runs_and_reports(tmp_path: Path, monkeypatch: pytest.Monke
     text = (out / TEXT_FILE).read_text().splitlines()
     assert text[0].split()[:2] == ["source", "method"] and len(text) == 1 + 4
 
+    # The results page: a budget row per source, ekf beside Park (the only, so the best, OpenCV).
+    code, stdout, stderr = run_hec(["report", str(out), "--page", str(tmp_path / "budget.md")])
+    assert code == 0 and "page: " in stdout, stderr
+    page = (tmp_path / "budget.md").read_text()
+    assert page.startswith("# Sweep results: budget\n") and "Written by `hec report DIR" in page
+    budget = page.split("## Error budget (medians)")[1].split("## ")[0]
+    for source in ("none", "board"):
+        cells = next(line for line in budget.splitlines() if line.startswith(f"| {source} |")).split(" | ")
+        assert float(cells[3].split(" / ")[0]) == pytest.approx(park_median_mm(source), abs=1e-3)
+        assert cells[4].startswith("park ") and cells[5].endswith("x") and cells[6] == "- |"  # unpaired
+
 
 def test_budget_table_gives_median_p95_and_mean_nees() -> None:
     rng = np.random.default_rng(3)
@@ -124,3 +137,12 @@ def test_budget_table_gives_median_p95_and_mean_nees() -> None:
         assert math.isclose(float(fields[6]), 2.0, abs_tol=1e-2)  # mean of 0..4
         assert fields[7] == "5/5"
     assert not has_budget([s for s in summaries if s.parameters["error_sources"] == "arm"])
+
+    # Paired: arm's extra error over the ideal cell, trial by trial (the same t in both cells).
+    ideal, arm = (
+        [r["error_translation_mm"] for r in rows if r["error_sources"] == c] for c in ("none", "arm")
+    )
+    differences = np.subtract(arm, ideal)
+    mean, standard_error = paired_cost(rows, "ekf")["arm"].split(" +- ")
+    assert math.isclose(float(mean), differences.mean(), abs_tol=1e-3)
+    assert math.isclose(float(standard_error), differences.std(ddof=1) / np.sqrt(5), abs_tol=1e-3)

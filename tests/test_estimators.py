@@ -3,6 +3,7 @@ Cramer-Rao bound, honest covariances, observability, and clear errors for bad in
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -18,7 +19,7 @@ from hec.estimator.solve.baselines import JOINT_LINEAR_METHODS
 from hec.estimator.solve.calibration import MethodOptions, Prior
 from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.methods import METHODS, run_method
-from hec.estimator.solve.observability import observability
+from hec.estimator.solve.observability import POOR_SIGMA_DEG, POOR_SIGMA_MM, observability
 from hec.estimator.solve.problem import CalibrationInputError, build_problem
 from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene
 
@@ -172,6 +173,28 @@ def test_rotation_about_one_axis_leaves_translation_along_it_unobservable() -> N
         "translation along the camera's optical axis is not observable from these views: add rotations "
         "of 15 degrees or more about at least two different axes"
     ]
+
+
+def test_poorly_determined_quotes_the_estimates_own_sigma_beside_the_bound() -> None:
+    """An estimate less certain than the views allow (noise learned larger, a self-calibration's
+    uncertainty added) is warned about with its own sigma, not the Cramer-Rao bound's."""
+    problem, _, X = _problem(17)
+    state = HandEyeState(X, T_base_board=T_BASE_BOARD)
+    bound = observability(problem, state)
+    assert not any("poorly determined" in w for w in bound.warnings)
+    inflation = (3.0 / bound.crb_sigma_translation_mm.max()) ** 2  # the worst axis at 3 mm
+    report = observability(problem, state, inflation * bound.crb_covariance)
+    quoted = [
+        re.search(r"this estimate's 1-sigma ([\d.]+) (mm|degrees); the Cramer-Rao bound's ([\d.]+)\)", w)
+        for w in report.warnings
+        if "poorly determined" in w
+    ]
+    assert quoted and all(q is not None for q in quoted), report.warnings
+    for q in quoted:
+        own, crb = float(q.group(1)), float(q.group(3))
+        assert own > (POOR_SIGMA_MM if q.group(2) == "mm" else POOR_SIGMA_DEG)
+        # Both printed to 2 significant digits (each within 5 %).
+        assert own / crb == pytest.approx(np.sqrt(inflation), rel=0.11)
 
 
 def test_bad_input_gets_a_clear_error() -> None:

@@ -167,14 +167,17 @@ def test_a_mirrored_board_file_is_named(exported, tmp_path, capsys, mirrored) ->
         assert "board check: the board file's layout fits the images" in out
 
 
-def test_calibrate_names_the_convention_mistake_of_a_poor_fit(exported, tmp_path, capsys) -> None:
+def test_calibrate_names_the_convention_of_poses_that_fit_no_mount(exported, tmp_path, capsys) -> None:
+    """Inverted poses imported unchecked: Park finds no mount and the other closed forms a bad one,
+    so calibrate refuses before any estimation, naming the reading that fits."""
     options = (*FOLDER_OPTIONS, "--pose-direction", "base-to-flange", "--no-check")
     assert main(_import(exported, tmp_path / "imported", "folder", *options)) == 0
     capsys.readouterr()
-    main(["calibrate", str(tmp_path / "imported"), "--method", "opencv-park", "--no-loo", "--verbose"])
-    out = capsys.readouterr().out
-    assert "a poor fit): the robot poses look like flange-to-base (inverted)" in out
-    assert "pass --pose-direction flange-to-base" in out
+    code = main(["calibrate", str(tmp_path / "imported"), "--method", "opencv-park", "--no-loo"])
+    err = capsys.readouterr().err
+    assert code == 2 and "the robot poses do not fit the images at any mount" in err, err
+    assert "the robot poses look like flange-to-base (inverted)" in err
+    assert "pass --pose-direction flange-to-base" in err
 
 
 @pytest.mark.parametrize(

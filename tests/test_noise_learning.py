@@ -91,6 +91,19 @@ def test_ideal_scene_learns_the_declared_levels_and_stays_honest() -> None:
     assert 3.0 < np.mean(nees) < 10.0, nees
 
 
+@pytest.mark.parametrize("arm_name", [None, "franka_panda", "ur5e"])
+def test_the_arm_warning_names_the_arm_the_dataset_declares(arm_name: str | None) -> None:
+    """An arm noisier than declared is described as the dataset's arm: UR figures only for a UR."""
+    rng = np.random.default_rng(401)
+    X = random_mount(rng)
+    observations = scene(X, rng, noise=replace(DECLARED, robot=_robot(5.0)))
+    problem = build_problem(observations, BOARD, INTRINSICS, DECLARED.robot, arm_name=arm_name)
+    result = run_method("ekf", problem, MethodOptions(), observations)
+    (warning,) = _warnings_with(result, "the arm is less exact than declared")
+    assert ("UR" in warning) == (arm_name == "ur5e"), warning
+    assert ("no arm" if arm_name is None else arm_name.upper() if arm_name == "ur5e" else arm_name) in warning
+
+
 def test_an_arm_five_times_noisier_than_declared_is_learned_and_named() -> None:
     """The flange poses 5x noisier than build_problem is told: the learned robot sigmas follow
     the actual ones, the result names the arm, and ekf stays honest where the declared-only run is

@@ -3,6 +3,7 @@ with the noise learned, degenerate motions, and `hec calibrate` / `hec detect` o
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -24,12 +25,20 @@ B_TRUE = make_transform(Rotation.from_rotvec([-1.5, 0.0, 0.1]).as_matrix(), np.a
 SIGMAS = np.array([1e-4, 1e-4, 4e-4, np.radians(0.05), np.radians(0.05), np.radians(0.01)])
 
 
-def _pairs(rng: np.random.Generator, count: int = 15, sigmas: np.ndarray | None = None) -> list[PosePair]:
-    """Views of the board from around it (flange poses that look at B_TRUE), board poses with noise."""
+def _pairs(
+    rng: np.random.Generator,
+    count: int = 15,
+    sigmas: np.ndarray | None = None,
+    distances_m: tuple[float, ...] = (0.45,),
+    tracking_scale: float = 1.0,
+) -> list[PosePair]:
+    """Views of the board from around it (flange poses that look at B_TRUE from the distances in
+    turn), board poses with noise and their translations read tracking_scale x true."""
     pairs = []
     for i in range(count):
         view = make_transform(
-            Rotation.from_rotvec(rng.normal(0, 0.35, 3)).as_matrix(), np.array([0.0, 0.0, -0.45])
+            Rotation.from_rotvec(rng.normal(0, 0.35, 3)).as_matrix(),
+            np.array([0.0, 0.0, -distances_m[i % len(distances_m)]]),
         )
         T_cam_board_true = invert(view)
         A = B_TRUE @ invert(T_cam_board_true) @ invert(X_TRUE)
@@ -38,6 +47,7 @@ def _pairs(rng: np.random.Generator, count: int = 15, sigmas: np.ndarray | None 
             if sigmas is None
             else pose_plus(T_cam_board_true, sigmas * rng.standard_normal(6))
         )
+        Z[:3, 3] *= tracking_scale
         pairs.append(PosePair(i, A, Z))
     return pairs
 
@@ -72,9 +82,34 @@ def test_exact_pairs_give_the_mount(method: str) -> None:
     result = solve_pose_pairs(method, pairs, MethodOptions(), RobotPoseNoise(0.0, 0.0))
     error_m, error_rad = pose_error(result.T_flange_cam, X_TRUE)
     assert error_m < 1e-9 and error_rad < 1e-9, (error_m, error_rad)
-    # Exact pairs still cannot show a common bias of the tracking poses: every method says so, at
-    # the pairs' viewing distance (0.45 m).
-    assert "5.9 mm at these pairs' 0.45 m" in result.warnings[-1]
+    # Views at one distance cannot measure a scale common to the tracking poses: every method says so.
+    assert "these views leave it undetermined (views at one distance)" in result.warnings[-1]
+    assert not any("noise was learned" in w or "0.000" in w for w in result.warnings), result.warnings
+
+
+@pytest.mark.parametrize("method", ["batch", "opencv-park"])
+def test_a_tracking_scale_is_measured_from_the_data_and_unbiased_pairs_get_no_warning(method: str) -> None:
+    """Views at two distances measure a scale common to the tracking poses' translations: 1 % is
+    named with its size from the data (within 3 sigma), exact and unbiased noisy pairs get no bias
+    warning, and exact pairs are not said to have learned a noise."""
+    two = (0.35, 0.6)
+    exact = solve_pose_pairs(
+        method, _pairs(np.random.default_rng(1), distances_m=two), MethodOptions(), PAIR_NOISE_FREE
+    )
+    assert not any("tracking poses" in w for w in exact.warnings), exact.warnings
+    if method == "batch":
+        assert any("fit each other exactly" in w for w in exact.warnings), exact.warnings
+    for seed in range(5):
+        for scale in (1.0, 1.01):
+            pairs = _pairs(np.random.default_rng(200 + seed), 20, SIGMAS, two, scale)
+            result = solve_pose_pairs(method, pairs, MethodOptions(), PAIR_NOISE_FREE)
+            said = [w for w in result.warnings if "tracking poses' translations read" in w]
+            if scale == 1.0:
+                assert not said, (seed, said)
+                continue
+            assert len(said) == 1, (seed, result.warnings)
+            found = re.search(r"read ([-+][\d.]+) % \(\+-([\d.]+) %\)", said[0])
+            assert abs(float(found.group(1)) - 1.0) < 3 * float(found.group(2)), said
 
 
 def test_noise_is_learned_and_the_uncertainty_is_honest() -> None:

@@ -65,6 +65,17 @@ def _apply(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.stack([row[i][0] * a + row[i][1] * b + row[i][2] for i in (0, 1)], axis=-1) / w[..., None]
 
 
+def _adjugate(H: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) -> the adjugates (M, 3, 3): the inverses times the determinants, which map points
+    as the inverses do (a homography's scale does not matter) without a solve."""
+    a, b, c, d, e, f, g, h, i = (H[:, k // 3, k % 3] for k in range(9))
+    adjugate = np.empty_like(H)
+    adjugate[:, 0, 0], adjugate[:, 0, 1], adjugate[:, 0, 2] = e * i - f * h, c * h - b * i, b * f - c * e
+    adjugate[:, 1, 0], adjugate[:, 1, 1], adjugate[:, 1, 2] = f * g - d * i, a * i - c * g, c * d - a * f
+    adjugate[:, 2, 0], adjugate[:, 2, 1], adjugate[:, 2, 2] = d * h - e * g, b * g - a * h, a * e - b * d
+    return adjugate
+
+
 def _fit_to_corners() -> np.ndarray:
     """(8, 2G): corner shifts (symbol units) of the weighted least-squares homography through
     displacements of the quadrature's points (symbol units) near the identity, rows (a0, b0, ..., b3)."""
@@ -115,7 +126,7 @@ def _bias(corners_xy: np.ndarray, camera: np.ndarray) -> np.ndarray:
     M = len(corners_xy)
     points_px = _distorted_pixels(_apply(_homographies_through(corners_xy), QUADRATURE_AB), camera)
     H = _homographies_through(_distorted_pixels(corners_xy, camera))
-    displacement = _apply(np.linalg.inv(H), points_px) - QUADRATURE_AB  # symbol units, (M, G, 2)
+    displacement = _apply(_adjugate(H), points_px) - QUADRATURE_AB  # symbol units, (M, G, 2)
     shift = (displacement.reshape(M, -1) @ _FIT_TO_CORNERS.T).reshape(M, 4, 2)
     # symbol units -> pixels through H's derivative at each corner
     w = H[:, 2:3, 0] * _CORNERS_AB[:, 0] + H[:, 2:3, 1] * _CORNERS_AB[:, 1] + 1.0  # (M, 4)

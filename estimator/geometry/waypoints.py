@@ -115,26 +115,50 @@ def look_at_board(tilt_deg: float, azimuth_deg: float, roll_deg: float, distance
     return make_transform(R_board_cam, -distance_m * R_board_cam[:, 2])
 
 
+def rotation_rich_views(distance_m: float, one_distance: bool = False) -> list[tuple[str, np.ndarray]]:
+    """The default trajectory's 17 views as (label, T_board_cam (4, 4)): the board centre seen with
+    tilts and rolls, at NEAR and FAR times distance_m (ROTATION_RICH_VIEWS); one_distance: every
+    view at distance_m (an orbit of the board centre, on which every motion is a rotation about it)."""
+    views = []
+    for tilt, az, roll, factor in ROTATION_RICH_VIEWS:
+        d = distance_m if one_distance else factor * distance_m
+        views.append((f"tilt {tilt} az {az} roll {roll} at {d:.3f} m", look_at_board(tilt, az, roll, d)))
+    return views
+
+
 def rotation_rich_waypoints(
     T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float, one_distance: bool = False
 ) -> list[Waypoint]:
-    """The default trajectory: 17 views of the board centre with tilts and rolls, at NEAR and FAR
-    times distance_m (ROTATION_RICH_VIEWS); one_distance: every view at distance_m (an orbit of
-    the board centre, on which every motion is a rotation about it)."""
+    """The default eye-in-hand trajectory: the camera on the flange at rotation_rich_views of the
+    board fixed at T_base_board (4, 4)."""
     T_cam_flange = invert(T_flange_cam)
-    waypoints = []
-    for i, (tilt, az, roll, factor) in enumerate(ROTATION_RICH_VIEWS):
-        d = distance_m if one_distance else factor * distance_m
-        T_base_flange = T_base_board @ look_at_board(tilt, az, roll, d) @ T_cam_flange
-        waypoints.append(
-            Waypoint(i, f"tilt {tilt} az {az} roll {roll} at {d:.3f} m", T_base_flange=T_base_flange)
-        )
-    return waypoints
+    return [
+        Waypoint(i, label, T_base_flange=T_base_board @ T_board_cam @ T_cam_flange)
+        for i, (label, T_board_cam) in enumerate(rotation_rich_views(distance_m, one_distance))
+    ]
+
+
+def eye_to_hand_waypoints(
+    T_base_cam: np.ndarray, T_flange_board: np.ndarray, distance_m: float, one_distance: bool = False
+) -> list[Waypoint]:
+    """The default eye-to-hand trajectory: the board on the flange (T_flange_board (4, 4)) turned
+    through the fixed camera's view (T_base_cam (4, 4)) so that the camera sees it as in
+    rotation_rich_views: T_base_flange = T_base_cam @ inv(T_board_cam) @ inv(T_flange_board)."""
+    T_board_flange = invert(T_flange_board)
+    return [
+        Waypoint(i, label, T_base_flange=T_base_cam @ invert(T_board_cam) @ T_board_flange)
+        for i, (label, T_board_cam) in enumerate(rotation_rich_views(distance_m, one_distance))
+    ]
 
 
 def paper_waypoints(T_base_board: np.ndarray, T_flange_cam: np.ndarray, distance_m: float) -> list[Waypoint]:
     """The paper's trajectory: head-on, translated 30-40 mm in base x, y and z (15 poses)."""
-    T_base_flange_0 = T_base_board @ look_at_board(0, 0, 0, distance_m) @ invert(T_flange_cam)
+    return translated_waypoints(T_base_board @ look_at_board(0, 0, 0, distance_m) @ invert(T_flange_cam))
+
+
+def translated_waypoints(T_base_flange_0: np.ndarray) -> list[Waypoint]:
+    """The flange pose T_base_flange_0 (4, 4) and 14 more translated 30-40 mm in base x, y and z
+    (PAPER_OFFSETS_M), its orientation kept."""
     waypoints = []
     for i, offset in enumerate(PAPER_OFFSETS_M):
         T = T_base_flange_0.copy()

@@ -14,6 +14,7 @@ import numpy as np
 
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.common.noise import LearnedNoiseLevels
+from hec.estimator.common.setups import EYE_IN_HAND, HAND_EYE_NAMES, SETUPS
 
 CALIBRATION_FORMAT = "hec-calibration"
 CALIBRATION_VERSION = 1
@@ -70,7 +71,10 @@ class CalibrationFile:
     flange frame). covariance: (6, 6) in the file's 'covariance_convention', None when the method gave
     none. noise: the learned levels, None when the method did not learn them. pose_frame: 'flange' or
     'tcp' (what the robot reported). data: the result's JSON object as read (with the file's context
-    keys), for the figures passed on as they are."""
+    keys), for the figures passed on as they are. setup: 'eye-in-hand', or 'eye-to-hand', whose file
+    names the transform T_base_cam (the camera fixed in the base frame): T_flange_cam then holds it,
+    as the calibration's result did (hec.estimator.solve.setup_roles), and its covariance's dt is
+    along the base axes."""
 
     path: Path
     method: str
@@ -82,6 +86,12 @@ class CalibrationFile:
     pose_frame: str
     dataset: str | None
     data: dict
+    setup: str = EYE_IN_HAND
+
+    @property
+    def hand_eye_name(self) -> str:
+        """The name of the transform T_flange_cam holds: 'T_flange_cam' or 'T_base_cam'."""
+        return HAND_EYE_NAMES[self.setup]
 
 
 def _pick_result(data: dict, path: Path, method: str | None) -> dict:
@@ -89,7 +99,8 @@ def _pick_result(data: dict, path: Path, method: str | None) -> dict:
         if method is not None and data.get("method") != method:
             raise CalibrationFileError(f"{path}: holds a '{data.get('method')}' result, not '{method}'")
         return data
-    results = [r for r in data["results"] if isinstance(r, dict) and "T_flange_cam" in r]
+    names = set(HAND_EYE_NAMES.values())
+    results = [r for r in data["results"] if isinstance(r, dict) and names & set(r)]
     names = [r.get("method") for r in results]
     if method is None:
         raise CalibrationFileError(
@@ -136,7 +147,7 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
         raise CalibrationFileError(
             f"{path}: is a '{fmt}' file, not a calibration (expected the output of hec calibrate --json)"
         )
-    if fmt is None and "T_flange_cam" not in data and "results" not in data:
+    if fmt is None and not set(HAND_EYE_NAMES.values()) & set(data) and "results" not in data:
         raise CalibrationFileError(
             f"{path}: not a calibration: no field 'T_flange_cam' "
             "(expected the output of hec calibrate --json)"
@@ -146,8 +157,14 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
             f"{path}: calibration version {data.get('version')!r}, this hec reads {CALIBRATION_VERSION}"
         )
     result = _pick_result(data, path, method)
-    if "T_flange_cam" not in result:
-        raise CalibrationFileError(f"{path}: missing field 'T_flange_cam' (a 4x4 matrix, metres)")
+    setup = result.get("setup", EYE_IN_HAND)
+    if setup not in HAND_EYE_NAMES:
+        raise CalibrationFileError(
+            f"{path}: field 'setup' should be one of {', '.join(SETUPS)}, got {setup!r}"
+        )
+    key = HAND_EYE_NAMES[setup]
+    if key not in result:
+        raise CalibrationFileError(f"{path}: missing field '{key}' (a 4x4 matrix, metres)")
     covariance = None
     if result.get("covariance") is not None:
         covariance = covariance_field(result, "covariance", path, CalibrationFileError)
@@ -155,7 +172,7 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
     return CalibrationFile(
         path=path,
         method=str(result.get("method", "?")),
-        T_flange_cam=pose_field(result, "T_flange_cam", path, CalibrationFileError),
+        T_flange_cam=pose_field(result, key, path, CalibrationFileError),
         covariance=covariance,
         noise=learned_noise_levels(result.get("noise"), path),
         depth_scale=None if depth_scale is None else float(depth_scale),
@@ -163,4 +180,5 @@ def read_calibration(path: Path, method: str | None = None) -> CalibrationFile:
         pose_frame=str(result.get("pose_frame", "flange")),
         dataset=result.get("dataset"),
         data=result,
+        setup=setup,
     )

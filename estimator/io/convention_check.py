@@ -33,6 +33,7 @@ from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.misfit import board_residual_px, data_noise_px, declared_corner_sigma_px
 from hec.estimator.solve.pose_pair_methods import PAIR_NOISE_FREE, PosePairModel, opencv_pose_pairs
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
+from hec.estimator.solve.setup_roles import model_pose
 
 # A mistaken convention is named when it leaves at most this fraction of the stated one's residual.
 MISTAKE_RATIO = 0.3
@@ -248,7 +249,7 @@ def _trial(
     try:
         T_base_flange = poses_from_values(values, convention)
         frames = [
-            replace(f, T_base_flange=T_base_flange[f.frame + shift], joints=None)
+            replace(f, T_base_flange=model_pose(problem.setup, T_base_flange[f.frame + shift]), joints=None)
             for f in problem.frames
             if 0 <= f.frame + shift < len(T_base_flange)
         ]

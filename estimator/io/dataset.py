@@ -23,7 +23,8 @@ folder a person can open without this project::
     rgb/NNNNNN.png      colour, 8-bit RGB
     depth/NNNNNN.png    depth, 16-bit; metres = value * depth_scale_m, 0 = no depth
     depth_samples/NNNNNN.png  optional, 8-bit: valid depth samples averaged per pixel
-    ground_truth.json   simulation only: T_flange_cam, T_base_board, T_world_base
+    ground_truth.json   simulation only: T_flange_cam, T_base_board, T_world_base (eye-to-hand:
+                        setup, T_base_cam, T_flange_board, T_world_base)
                         and per frame the true T_base_flange and joints
     detections.json     optional cache written by `hec detect` (hec.estimator.observe.observations)
     overlay/NNNNNN.png  optional detection pictures written by `hec detect --overlay`
@@ -50,6 +51,7 @@ import numpy as np
 from hec.estimator.common.depth_png import encode_depth
 from hec.estimator.common.files import open_text, write_atomic
 from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
 from hec.estimator.io.lock import remove_dead_partials, writers_running
@@ -249,9 +251,18 @@ def write_frame_files(
 
 
 def ground_truth_dict(truth: GroundTruth) -> dict:
+    """ground_truth.json: eye-in-hand T_flange_cam and T_base_board, eye-to-hand (with 'setup')
+    T_base_cam and T_flange_board."""
+    if truth.setup == EYE_TO_HAND:
+        unknowns = {
+            "setup": EYE_TO_HAND,
+            "T_base_cam": _matrix(truth.T_base_cam),
+            "T_flange_board": _matrix(truth.T_flange_board),
+        }
+    else:
+        unknowns = {"T_flange_cam": _matrix(truth.T_flange_cam), "T_base_board": _matrix(truth.T_base_board)}
     data = {
-        "T_flange_cam": _matrix(truth.T_flange_cam),
-        "T_base_board": _matrix(truth.T_base_board),
+        **unknowns,
         "T_world_base": _matrix(truth.T_world_base),
         "frames": [
             {"frame": i, "T_base_flange": _matrix(T), "joints_rad": [float(v) for v in q]}
@@ -325,13 +336,22 @@ def load_dataset(path: str | Path) -> Dataset:
 def read_ground_truth(path: Path) -> GroundTruth:
     gt = read_json_object(path, DatasetError)
     try:
+        if gt.get("setup", EYE_IN_HAND) == EYE_TO_HAND:
+            unknowns = {
+                "T_base_cam": np.array(gt["T_base_cam"]),
+                "T_flange_board": np.array(gt["T_flange_board"]),
+            }
+            mount = board = None
+        else:
+            unknowns, mount, board = {}, np.array(gt["T_flange_cam"]), np.array(gt["T_base_board"])
         return GroundTruth(
-            np.array(gt["T_flange_cam"]),
-            np.array(gt["T_base_board"]),
+            mount,
+            board,
             np.array(gt["T_world_base"]),
             gt.get("model_errors"),
             [np.array(f["T_base_flange"]) for f in gt["frames"]],
             [np.array(f["joints_rad"]) for f in gt["frames"]],
+            **unknowns,
         )
     except (KeyError, TypeError) as exc:
         raise DatasetError(f"{path}: missing field {exc}") from None

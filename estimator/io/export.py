@@ -11,6 +11,10 @@ Numbers are written with repr (shortest round trip) so a reader gets the transfo
 and only finite ones. Frame names are refused when empty or holding white space or control
 characters (no tool's frame has them, and a line break would end a comment), and escaped for the
 format they go into (XML attributes, shell words, Python and YAML strings).
+
+An eye-to-hand calibration (the camera fixed in the cell) exports T_base_cam the same way, its
+parent the robot's base frame (base_link -> camera), and easy_handeye2's calibration_type is then
+eye_on_base.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import yaml
 
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.lie import skew
 from hec.estimator.geometry.transforms import (
     invert,
@@ -37,6 +42,10 @@ OPTICAL_SUFFIX = "_optical_frame"
 # camera_link (x forward, y left, z up, ROS REP 103) -> an optical frame (x right, y down, z forward).
 OPTICAL_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 USE = "T_base_cam = T_base_flange @ T_flange_cam (OpenCV's name: cam2gripper); p_base = T_base_cam @ p_cam"
+USE_EYE_TO_HAND = "p_base = T_base_cam @ p_cam (the camera fixed in the cell; OpenCV's name: cam2base)"
+# A set-up's default parent frame (the frame its camera is fixed in) and easy_handeye2's name for it.
+PARENT_FRAMES = {EYE_IN_HAND: "tool0", EYE_TO_HAND: "base_link"}
+EASY_HANDEYE2_TYPES = {EYE_IN_HAND: "eye_in_hand", EYE_TO_HAND: "eye_on_base"}
 COVARIANCE_CONVENTION = (
     "6x6 covariance of the perturbation (dt, dtheta) of the transform: R = R_est Exp(dtheta), "
     "t = t_est + dt; "
@@ -103,18 +112,24 @@ class Export:
     def comment(self) -> list[str]:
         """The header every format carries: which transform it is and how to use it."""
         cal = self.calibration
+        if cal.setup == EYE_TO_HAND:
+            result = (
+                f"T_base_cam, the fixed camera's optical frame in the robot base frame: {USE_EYE_TO_HAND}."
+            )
+        else:
+            result = f"T_flange_cam, the camera optical frame in the flange: {USE}."
         lines = [
             f"hec calibration ({cal.method}, from {cal.path}): the transform {self.parent} -> {self.child},",
             f"the pose of '{self.child}' in '{self.parent}' (T_{self.parent}_{self.child}), metres.",
-            f"hec's result is T_flange_cam, the camera optical frame in the flange: {USE}.",
+            f"hec's result is {result}",
         ]
         if cal.pose_frame == "tcp":
             lines.append("The robot reported its TCP, not the flange: the parent is that TCP frame.")
         if self.composes_link:
             t, q = xyz_quat_from_transform(self.T_link_optical)
             lines += [
-                f"'{self.child}' is the camera's root link: T_{self.parent}_{self.child} = T_flange_cam @ "
-                f"inv(T_link_optical), T_link_optical ({self.link_source}):",
+                f"'{self.child}' is the camera's root link: T_{self.parent}_{self.child} = "
+                f"{cal.hand_eye_name} @ inv(T_link_optical), T_link_optical ({self.link_source}):",
                 f"  xyz {_numbers(t)} m, quaternion (w x y z) {_numbers(q)}",
             ]
         return lines
@@ -216,14 +231,17 @@ def _yaml_text(e: Export, data: dict, flow: bool | None = None) -> str:
 
 
 def easy_handeye2(e: Export) -> str:
-    """easy_handeye2's .calib YAML (parameters, then transform: translation x y z, rotation x y z w)."""
+    """easy_handeye2's .calib YAML (parameters, then transform: translation x y z, rotation x y z w):
+    eye_in_hand, the transform effector -> camera; eye_on_base (eye-to-hand), robot base -> camera."""
     t, q = _xyz_xyzw(e.T_parent_child)
+    setup = e.calibration.setup
+    base, effector = (e.parent, "tool0") if setup == EYE_TO_HAND else ("base_link", e.parent)
     data = {
         "parameters": {
             "name": "hec",
-            "calibration_type": "eye_in_hand",
-            "robot_base_frame": "base_link",
-            "robot_effector_frame": e.parent,
+            "calibration_type": EASY_HANDEYE2_TYPES[setup],
+            "robot_base_frame": base,
+            "robot_effector_frame": effector,
             "tracking_base_frame": e.child,
             "tracking_marker_frame": "hec_board",
             "freehand_robot_movement": True,
@@ -253,7 +271,7 @@ def transform_record(e: Export) -> dict:
         "format": "hec-transform",
         "version": 1,
         "transform": f"T_{e.parent}_{e.child}: the pose of '{e.child}' in '{e.parent}'",
-        "use": USE,
+        "use": USE_EYE_TO_HAND if cal.setup == EYE_TO_HAND else USE,
         "parent_frame": e.parent,
         "child_frame": e.child,
         "method": cal.method,

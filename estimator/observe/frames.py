@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from hec.estimator.common.depth_png import decode_depth
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.targets.target import Target
 
@@ -55,14 +56,40 @@ class Capture:
 class GroundTruth:
     """Simulation truth: the mount, the board pose and per-frame true flange poses. model_errors:
     the true cell where it differs from what the dataset reports (true kinematics, intrinsics,
-    depth registration, printed board; hec.sim.model_errors.TrueCell.to_dict), or None."""
+    depth registration, printed board; hec.sim.model_errors.TrueCell.to_dict), or None.
+    Eye-in-hand: T_flange_cam and T_base_board (4, 4); eye-to-hand: T_base_cam and T_flange_board
+    (4, 4) instead, the other two None."""
 
-    T_flange_cam: np.ndarray
-    T_base_board: np.ndarray
+    T_flange_cam: np.ndarray | None
+    T_base_board: np.ndarray | None
     T_world_base: np.ndarray
     model_errors: dict | None = None
     T_base_flange: list[np.ndarray] = field(default_factory=list)
     joints: list[np.ndarray] = field(default_factory=list)
+    T_base_cam: np.ndarray | None = None
+    T_flange_board: np.ndarray | None = None
+
+    @property
+    def setup(self) -> str:
+        return EYE_TO_HAND if self.T_base_cam is not None else EYE_IN_HAND
+
+    @property
+    def hand_eye(self) -> np.ndarray:
+        """(4, 4) the transform a calibration estimates: T_flange_cam (eye-in-hand) or T_base_cam
+        (eye-to-hand)."""
+        return self.T_base_cam if self.T_base_cam is not None else self.T_flange_cam
+
+    @property
+    def board_pose(self) -> np.ndarray:
+        """(4, 4) the other unknown: T_base_board (eye-in-hand) or T_flange_board (eye-to-hand)."""
+        return self.T_flange_board if self.T_base_cam is not None else self.T_base_board
+
+    def T_cam_board(self, frame: int) -> np.ndarray:
+        """(4, 4) the board in the true camera frame of one frame."""
+        F = self.T_base_flange[frame]
+        if self.T_base_cam is not None:
+            return np.linalg.inv(self.T_base_cam) @ F @ self.T_flange_board
+        return np.linalg.inv(F @ self.T_flange_cam) @ self.T_base_board
 
 
 @dataclass

@@ -82,7 +82,7 @@ class MeasurementErrors:
 
 def true_T_cam_board(truth: GroundTruth, frame: int) -> np.ndarray:
     """(4, 4) the board in the true camera frame of one frame."""
-    return invert(truth.T_base_flange[frame] @ truth.T_flange_cam) @ truth.T_base_board
+    return truth.T_cam_board(frame)
 
 
 def true_cell(

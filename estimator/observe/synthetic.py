@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics, project
 from hec.estimator.geometry.lie import pose_plus
 from hec.estimator.geometry.marker_fit_bias import marker_fit_bias
@@ -45,11 +46,15 @@ def synthetic_observations(
     rng: np.random.Generator,
     exact: bool = False,
     margin_px: float = 2.0,
+    setup: str = EYE_IN_HAND,
 ) -> list[FrameObservations]:
     """One FrameObservations per true flange pose, holding the markers fully in view.
 
     exact: add no noise, but still report the covariances of ``noise``. Noise is drawn frame by
-    frame: the flange pose's, then each kept marker's corners' and its depths'.
+    frame: the flange pose's, then each kept marker's corners' and its depths'. setup 'eye-to-hand':
+    the camera is fixed at T_flange_cam = T_base_cam and the board rides on the flange at
+    T_base_board = T_flange_board (the two unknowns' roles swapped); the reported flange poses are
+    perturbed alike.
     """
     if board.points_per_marker != 4:
         raise ValueError(
@@ -61,7 +66,11 @@ def synthetic_observations(
     corners_base = transform_points(T_base_board, corners_board.reshape(-1, 3))
     centers_base = transform_points(T_base_board, np.array([board.marker_center(m) for m in ids]))
     limits = np.array([intrinsics.width - 1 - margin_px, intrinsics.height - 1 - margin_px])
-    T_cam_base = [invert(T_base_flange @ T_flange_cam) for T_base_flange in T_base_flange_true]
+    # the camera's pose in the frame the board is fixed in (the base; eye-to-hand the flange)
+    if setup == EYE_TO_HAND:
+        T_cam_base = [invert(T_flange_cam) @ T_base_flange for T_base_flange in T_base_flange_true]
+    else:
+        T_cam_base = [invert(T_base_flange @ T_flange_cam) for T_base_flange in T_base_flange_true]
     # Every frame's markers at once: camera-frame corners (F, M, 4, 3), the ones wholly in front.
     corners_cam = np.array([transform_points(T, corners_base) for T in T_cam_base]).reshape(
         -1, len(ids), 4, 3

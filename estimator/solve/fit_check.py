@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from hec.estimator.geometry.lie import pose_minus
 from hec.estimator.solve.measurement_model import predict_frame
 from hec.estimator.solve.noise_learning import LearnedNoise
 from hec.estimator.solve.problem import CalibrationProblem
@@ -33,6 +32,7 @@ from hec.estimator.solve.self_calibration import (
     PRIOR_SIGMA,
     adjusted_problem,
 )
+from hec.estimator.solve.setup_roles import flange_minus
 
 # A group fits badly when its chi-square per degree of freedom at the declared noise exceeds this
 # (its learned sigma is then more than 1.5x the declared one).
@@ -85,8 +85,8 @@ def check_fit(problem: CalibrationProblem, learned: LearnedNoise, rejected: int)
             f"the arm is less exact than declared: its pose noise, learned from the data, is "
             f"{1e3 * learnt.translation_sigma_m:.2f} mm / {np.degrees(learnt.rotation_sigma_rad):.3f} deg, "
             f"the dataset declares {1e3 * declared.translation_sigma_m:.2f} mm / "
-            f"{np.degrees(declared.rotation_sigma_rad):.3f} deg (a UR's absolute accuracy with nominal "
-            "kinematics is millimetres, its repeatability 0.1 mm): the learned level is used"
+            f"{np.degrees(declared.rotation_sigma_rad):.3f} deg ({_arm_accuracy(problem.arm_name)}): the "
+            "learned level is used"
         )
     depth = learned.depth
     if depth is not None and not depth.used and not depth.agrees:
@@ -332,7 +332,7 @@ def _kinematic_finding(problem: CalibrationProblem, learned: LearnedNoise, patte
     adjusted = adjusted_problem(problem, learned.theta, learned.theta_names)
     moves = np.array(
         [
-            pose_minus(a.T_base_flange, f.T_base_flange)
+            flange_minus(problem.setup, a.T_base_flange, f.T_base_flange)
             for a, f in zip(adjusted.frames, problem.frames, strict=True)
         ]
     )
@@ -345,8 +345,32 @@ def _kinematic_finding(problem: CalibrationProblem, learned: LearnedNoise, patte
         f"the arm's kinematics differ from the nominal {problem.kinematics.name} model: corrected, they move "
         f"the reported flange poses by {1e3 * rms_m:.2f} mm / {np.degrees(rms_rad):.3f} deg RMS (up to "
         f"{1e3 * translation_m.max():.2f} mm / {np.degrees(rotation_rad.max()):.3f} deg) over these views: "
-        "use the arm's own calibrated kinematics (a UR's calibration.conf) where the poses come from"
+        f"use the arm's own calibrated kinematics ({_calibrated_model(problem.arm_name)}) where the poses "
+        "come from"
     ]
+
+
+def _is_ur(arm_name: str | None) -> bool:
+    return arm_name is not None and arm_name.lower().startswith("ur")
+
+
+def _arm_accuracy(arm_name: str | None) -> str:
+    """What an arm like the declared one achieves, in words (the arm-noise warning)."""
+    if _is_ur(arm_name):
+        return (
+            f"the dataset declares a {arm_name.upper()}: a UR's absolute accuracy with nominal kinematics "
+            "is millimetres, its repeatability 0.03-0.1 mm"
+        )
+    arm = "no arm" if arm_name is None else f"the arm {arm_name!r}"
+    return (
+        f"the dataset declares {arm}; an arm's absolute accuracy with its nominal kinematics is often "
+        "millimetres, well above its repeatability"
+    )
+
+
+def _calibrated_model(arm_name: str | None) -> str:
+    """Where the declared arm keeps its calibrated kinematics, in words."""
+    return "a UR's calibration.conf" if _is_ur(arm_name) else "its controller's calibrated model"
 
 
 def _scale_ambiguity(learned: LearnedNoise, patterns: dict) -> list[str]:

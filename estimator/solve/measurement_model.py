@@ -4,6 +4,9 @@ A board corner c (board frame) seen in frame i:
 
     p_base = T_base_board @ c                 (board mode), or a landmark (landmark mode)
     p_cam  = inv(T_flange_cam) @ inv(pose_plus(T_base_flange_i, delta_i)) @ p_base
+             (eye-to-hand the same with the roles swapped, hec.estimator.solve.setup_roles: the
+             frame's pose is inv(pose_plus(reported, delta_i)), T_flange_cam is T_base_cam,
+             T_base_board is T_flange_board)
     pixel  = project(p_cam) + b               (K and OpenCV distortion; b: where the detector's
                                                homography fit over the marker's distorted image
                                                puts its corners, hec.estimator.geometry.marker_fit_bias;
@@ -22,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hec.estimator.common.setups import EYE_TO_HAND
 from hec.estimator.geometry.camera import distort_normalized
 from hec.estimator.geometry.lie import pose_minus, pose_plus, pose_plus_jacobian, skew_rows
 from hec.estimator.geometry.marker_fit_bias import (
@@ -30,6 +34,7 @@ from hec.estimator.geometry.marker_fit_bias import (
     marker_fit_bias_jacobians,
 )
 from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.setup_roles import flange_plus, model_pose_jacobian
 
 
 @dataclass(frozen=True)
@@ -135,7 +140,9 @@ def predict_frame(
 ) -> FramePrediction:
     """Predict one frame's markers and compare with the measurements (see the module doc)."""
     T_base_flange = (
-        frame.T_base_flange if delta_flange is None else pose_plus(frame.T_base_flange, delta_flange)
+        frame.T_base_flange
+        if delta_flange is None
+        else flange_plus(problem.setup, frame.T_base_flange, delta_flange)
     )
     points = marker_points(problem, frame.markers, state.T_base_board is not None)
     R_F, t_F = T_base_flange[:3, :3], T_base_flange[:3, 3]
@@ -254,6 +261,8 @@ def predict_points(
         columns = 6 + 3 * rows[:, None, None] + np.arange(3)
         d_cam_d_state[np.arange(P)[:, None, None], np.arange(3)[:, None], columns] = RXt_RFt
     d_cam_d_F = np.concatenate([np.broadcast_to(-RXt_RFt, (P, 3, 3)), RXt @ skew_rows(p_flange)], axis=2)
+    if problem.setup == EYE_TO_HAND:  # the flange perturbation is the reported pose's (setup_roles)
+        d_cam_d_F = d_cam_d_F @ model_pose_jacobian(R_F, t_F)
     # measurement rows per point: (u, v) then z, (P, 3, 3) d(u, v, depth)/d p_cam
     d_depth = gain * np.array([tilt[0], tilt[1], scale])
     d_meas_d_cam = np.concatenate([d_pix, np.broadcast_to(d_depth, (P, 1, 3))], axis=1)

@@ -19,6 +19,7 @@ from hec.estimator.solve.noise_levels import scaled_problem
 from hec.estimator.solve.observability import observability
 from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError, CalibrationProblem
 from hec.estimator.solve.seed_ekf import check_depth, seed_ekf
+from hec.estimator.solve.seed_ekf_check import check_assumptions
 from hec.estimator.solve.ukf import ukf
 
 Method = Callable[[CalibrationProblem, MethodOptions, list[FrameObservations]], Calibration]
@@ -64,6 +65,7 @@ def solve(
         check_depth(observations)  # before the learning pass, which would fail on another count
     if not needs_learned_noise(name, options):
         result = METHODS[name](problem, options, observations)
+        result.setup = problem.setup
         rejected = result.observations_rejected
         if rejected > MAX_REJECTED_FRACTION * problem.observation_count:
             result.warnings.append(
@@ -76,7 +78,13 @@ def solve(
     adjusted, solved, solved_options = learned_setup(name, problem, options, learned)
     _check_usable(problem, adjusted, solved, learned)
     result = METHODS[name](solved, solved_options, observations)
+    result.setup = problem.setup
     _account_for_learning(problem, adjusted, result, learned)
+    if name == "seed-ekf":
+        check = check_assumptions(result, learned, solved, solved_options)
+        result.diagnostics["assumptions"] = check
+        if not check.holds:
+            result.warnings.insert(0, check.warning())
     return result
 
 
@@ -141,7 +149,7 @@ def run_method(
         result.warnings.append(misfit)
     noise = result.diagnostics.get("noise")
     seen = camera_problem(name, problem, noise)
-    report = observability(seen, calibration_state(problem, result))
+    report = observability(seen, calibration_state(problem, result), result.covariance)
     result.diagnostics["observability"] = report
     result.warnings.extend(w for w in report.warnings if w not in result.warnings)
     return result

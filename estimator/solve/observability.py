@@ -92,25 +92,60 @@ def _describe(vector: np.ndarray, R_flange_cam: np.ndarray, is_translation: bool
     return ("translation along " if is_translation else "rotation about ") + name
 
 
-def observability(problem: CalibrationProblem, state: HandEyeState) -> Observability:
-    """Cramer-Rao bound of T_flange_cam at ``state`` and the directions it cannot pin down."""
+def _is_translation(v: np.ndarray) -> bool:
+    """Whether a direction (6,) of the mount is more translation than rotation."""
+    return bool(np.linalg.norm(v[:3]) >= np.linalg.norm(v[3:]))
+
+
+def _direction(v: np.ndarray, state: HandEyeState) -> str:
+    """A direction (6,) of the mount in plain words (_describe of its larger part)."""
+    translation = _is_translation(v)
+    part = v[:3] if translation else v[3:]
+    return _describe(part / np.linalg.norm(part), state.T_flange_cam[:3, :3], translation)
+
+
+def observability(
+    problem: CalibrationProblem, state: HandEyeState, covariance: np.ndarray | None = None
+) -> Observability:
+    """Cramer-Rao bound of T_flange_cam at ``state`` and the directions it cannot pin down.
+    covariance: the estimate's own (6, 6) covariance (hec.estimator.geometry.lie convention): the
+    directions it leaves poorly determined are warned about with its own 1-sigma, the bound's
+    beside it; None: the bound's directions and sigmas."""
     info = mount_information(problem, state)
     units = np.array([1e-3] * 3 + [np.radians(1.0)] * 3)  # metres per mm, radians per degree
     scaled = units[:, None] * info * units[None, :]  # information per mm^2 / deg^2
     values, vectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
     sigmas = np.where(values > 0, 1.0 / np.sqrt(np.maximum(values, 1e-300)), np.inf)
     result = Observability(info, None, np.full(3, np.inf), np.full(3, np.inf))
+
+    def bound_sigma(v: np.ndarray) -> float:
+        """The bound's 1-sigma along a unit direction v (6,) (mm, degrees)."""
+        weights = (vectors.T @ v) ** 2
+        return float(np.sqrt(np.sum(np.where(weights > 1e-12, weights * sigmas**2, 0.0))))
+
     for sigma, v in zip(sigmas, vectors.T, strict=True):
-        is_translation = np.linalg.norm(v[:3]) >= np.linalg.norm(v[3:])
-        part = v[:3] if is_translation else v[3:]
-        what = _describe(part / np.linalg.norm(part), state.T_flange_cam[:3, :3], is_translation)
-        unit = "mm" if is_translation else "degrees"
-        if sigma > (UNOBSERVABLE_SIGMA_MM if is_translation else UNOBSERVABLE_SIGMA_DEG):
+        if sigma > (UNOBSERVABLE_SIGMA_MM if _is_translation(v) else UNOBSERVABLE_SIGMA_DEG):
             result.observable = False
-            result.warnings.append(f"{what} is not observable from these views: {_ADVICE}")
-        elif sigma > (POOR_SIGMA_MM if is_translation else POOR_SIGMA_DEG):
+            result.warnings.append(f"{_direction(v, state)} is not observable from these views: {_ADVICE}")
+    if covariance is None:
+        own = list(zip(sigmas, vectors.T, strict=True))
+    else:
+        own_values, own_vectors = np.linalg.eigh(covariance / units[:, None] / units[None, :])
+        own = list(zip(np.sqrt(np.maximum(own_values, 0.0)), own_vectors.T, strict=True))
+    for sigma, v in own:
+        translation = _is_translation(v)
+        bound = bound_sigma(v)
+        if bound > (UNOBSERVABLE_SIGMA_MM if translation else UNOBSERVABLE_SIGMA_DEG):
+            continue  # said above
+        if sigma > (POOR_SIGMA_MM if translation else POOR_SIGMA_DEG):
+            unit = "mm" if translation else "degrees"
+            whose = (
+                f"the Cramer-Rao bound's 1-sigma {sigma:.2g} {unit}"
+                if covariance is None
+                else f"this estimate's 1-sigma {sigma:.2g} {unit}; the Cramer-Rao bound's {bound:.2g}"
+            )
             result.warnings.append(
-                f"{what} is poorly determined (1-sigma {sigma:.2g} {unit}): {_ADVICE}, or add views"
+                f"{_direction(v, state)} is poorly determined ({whose}): {_ADVICE}, or add views"
             )
     unobservable_translations = [w for w in result.warnings if w.startswith("translation") and "not obs" in w]
     if len(unobservable_translations) == 3:

@@ -45,13 +45,16 @@ VCE_ITERATIONS = 50
 # A learned component never goes below this fraction of its start (an axis whose scatter the robot
 # noise carried through already explains would otherwise shrink to zero and stop the iteration).
 VCE_FLOOR = 1e-6
-# A bias common to every tracking pose (its camera's intrinsics and lens model, the board's printed
-# scale) moves the mount without leaving a residual. On the simulated realistic cell, PnP board poses
-# from factory intrinsics were 2-6.5 mm (median 5.4 mm) off along the line of sight at 0.40 m: 1.3 %.
-TRACKING_BIAS_FRACTION = 0.013
 # A tracking pose's noise, as a fraction of the viewing distance (a PnP pose along its line of sight
 # from ordinary corners), for the misfit check.
 TRACKING_NOISE_FRACTION = 0.005
+# A scale common to every tracking pose's translation (its camera's focal length, the board's printed
+# scale) moves the mount; the robot's motions measure it (tracking_scale). It is reported when it is
+# more than SCALE_SIGNIFICANT sigmas and SCALE_NOTEWORTHY from 1 (0.01 %: 0.05 mm at half a metre).
+SCALE_SIGNIFICANT = 3.0
+SCALE_NOTEWORTHY = 1e-4
+# A scale the views leave this uncertain (1-sigma) is not measured (views at one distance).
+SCALE_UNRESOLVED = 0.01
 GN_ITERATIONS = 50
 # The filters' prior around the Park solution: wide, it adds no information.
 FILTER_PRIOR_SIGMA = (0.1, 0.5)  # metres, radians
@@ -87,7 +90,9 @@ def solve_pose_pairs(
         result.method = name
         if options.prior is not None:
             result.warnings.append("the prior is not used with pose pairs")
-    result.warnings.append(tracking_bias_warning(pairs))
+    bias = tracking_bias_warning(pairs, robot_noise or RobotPoseNoise())
+    if bias is not None:
+        result.warnings.append(bias)
     result.diagnostics["time_s"] = time.perf_counter() - start
     result.diagnostics["pose_pair_rms"] = PosePairModel(pairs, PAIR_NOISE_FREE).rms(
         result.T_flange_cam, result.T_base_board
@@ -122,16 +127,33 @@ def pose_pair_misfit(pairs: list[PosePair], result: Calibration, robot_noise: Ro
     )
 
 
-def tracking_bias_warning(pairs: list[PosePair]) -> str:
-    """What pose pairs cannot show: a bias common to the tracking poses, at TRACKING_BIAS_FRACTION of
-    the median viewing distance, goes into the mount unseen."""
+def tracking_bias_warning(pairs: list[PosePair], robot_noise: RobotPoseNoise) -> str | None:
+    """A warning when the tracking poses' translations read a scale off what the robot's motions give
+    (PosePairModel.tracking_scale, beyond SCALE_SIGNIFICANT sigmas and SCALE_NOTEWORTHY), sized at
+    the pairs' median viewing distance; None when the data show none."""
+    model = PosePairModel(pairs, robot_noise)
+    X, B = opencv_pose_pairs(pairs, "opencv-park")
+    optimum = model.batch(X, B)
+    scale, sigma = model.tracking_scale(
+        optimum.T_flange_cam, optimum.T_base_board, optimum.diagnostics.get("learned_pose_sigma")
+    )
     distance = float(np.median([np.linalg.norm(p.T_cam_board[:3, 3]) for p in pairs]))
+    if sigma > SCALE_UNRESOLVED:
+        return (
+            "these pairs cannot measure a scale common to the tracking poses' translations (their "
+            "camera's focal length, the board's printed scale): these views leave it "
+            + ("undetermined" if not np.isfinite(sigma) else f"+-{100 * sigma:.1f} %")
+            + " (views at one distance), and such a scale moves the mount along the line of sight "
+            "unseen; add views nearer to and farther from the board to measure it"
+        )
+    if abs(scale - 1.0) <= max(SCALE_SIGNIFICANT * sigma, SCALE_NOTEWORTHY):
+        return None
     return (
-        "pose pairs cannot show a bias common to the tracking poses (their camera's intrinsics or lens "
-        "model, the board's printed scale): it moves the mount without a residual, and no uncertainty here "
-        f"covers it. Such biases were {100 * TRACKING_BIAS_FRACTION:.1f} % of the viewing distance in the "
-        f"simulated realistic cell: {1e3 * TRACKING_BIAS_FRACTION * distance:.1f} mm at these pairs' "
-        f"{distance:.2f} m. Calibrate from the images to model them"
+        f"the tracking poses' translations read {100 * (scale - 1.0):+.2f} % (+-{100 * sigma:.2f} %) off "
+        "what the robot's motions give: a bias common to them (their camera's focal length, the board's "
+        f"printed scale) that moves the mount by about {1e3 * abs(scale - 1.0) * distance:.1f} mm at these "
+        f"pairs' {distance:.2f} m and that no uncertainty here covers: correct the tracking camera's "
+        "intrinsics or the board file, or calibrate from the images to model them"
     )
 
 
@@ -226,6 +248,27 @@ class PosePairModel:
             np.sqrt(np.mean(np.sum(r[:, 3:] ** 2, axis=1)))
         )
 
+    def tracking_scale(self, X: np.ndarray, B: np.ndarray, levels: np.ndarray | None) -> tuple[float, float]:
+        """The scale of the tracking poses' translations (measured = scale x predicted) and its
+        1-sigma, freed beside (X, B) at their optimum for these levels (see measurement_covariances):
+        one Gauss-Newton step from scale 1, the model being linear in it. The sigma is inf when the
+        views cannot tell the scale from the mount (all at one distance from the board)."""
+        r, J, J_A = self.stacked(X, B)
+        t_cam_board = np.array([(invert(X) @ invert(p.T_base_flange) @ B)[:3, 3] for p in self.pairs])
+        d_scale = np.zeros((len(self.pairs), 6, 1))
+        d_scale[:, :3, 0] = -t_cam_board  # d r / d(log scale) at scale 1
+        J = np.concatenate([J, d_scale], axis=2)
+        W = np.linalg.inv(self.measurement_covariances(J_A, levels))
+        H = np.einsum("nji,njk,nkl->il", J, W, J)
+        g = np.einsum("nji,njk,nk->i", J, W, r)
+        # The scale's information with (X, B) free: the Schur complement of their block.
+        gain = np.linalg.solve(H[:12, :12], H[:12, 12])
+        information = float(H[12, 12] - H[12, :12] @ gain)
+        if not information > 1e-12 * H[12, 12]:
+            return 1.0, float("inf")
+        step = -(g[12] - gain @ g[:12]) / information
+        return float(np.exp(step)), float(1.0 / np.sqrt(information))
+
     def _gauss_newton(
         self, X: np.ndarray, B: np.ndarray, levels: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -287,6 +330,13 @@ class PosePairModel:
         if levels is None:
             return
         result.diagnostics["learned_pose_sigma"] = levels
+        if np.all(levels <= 1.001 * VCE_FLOOR * START_SIGMAS):
+            result.warnings.append(
+                "the pairs give no covariance for the board pose and fit each other exactly (residuals at "
+                "numerical precision): there is no noise to learn and the uncertainty is that of exact "
+                "pairs; real poses are never exact (were these simulated without noise?)"
+            )
+            return
         mm = " ".join(f"{v:.3f}" for v in 1e3 * levels[:3])
         deg = " ".join(f"{v:.4f}" for v in np.degrees(levels[3:]))
         result.warnings.append(

@@ -26,10 +26,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.common.setups import EYE_IN_HAND, SETUPS
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import ARMS, URKinematics, arm_from_dict
 from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError
 from hec.estimator.observe.observations import FrameObservations, MarkerObservation
+from hec.estimator.solve.setup_roles import check_setup, model_pose
 from hec.estimator.targets.target import Target
 
 MIN_FRAMES = 3
@@ -56,7 +58,7 @@ def dataset_arm(dataset: Dataset) -> ReportedArm | None:
     all have its six joints, or the poses are the controller's TCP rather than the flange
     (kinematics to tool0 then miss the TCP offset)."""
     meta = dataset.metadata
-    name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
+    name = dataset_arm_name(dataset)
     if meta.get("pose_frame", "flange") != "flange":
         return None
     if "robot_dh" in meta:  # an arm imported with its own DH table
@@ -75,6 +77,25 @@ def dataset_arm(dataset: Dataset) -> ReportedArm | None:
     return ReportedArm(
         kinematics, {i: np.asarray(row["joints"], float) for i, row in enumerate(dataset.rows)}
     )
+
+
+def dataset_arm_name(dataset: Dataset) -> str | None:
+    """The arm the dataset declares (dataset.json 'robot_model', or a simulation's scenario robot),
+    known to hec or not; None when it names none."""
+    meta = dataset.metadata
+    name = meta.get("robot_model") or (meta.get("simulation") or {}).get("scenario", {}).get("robot")
+    return None if name is None else str(name)
+
+
+def dataset_setup(dataset: Dataset) -> str:
+    """The dataset's set-up (dataset.json 'setup'): 'eye-in-hand' when not given, or 'eye-to-hand'."""
+    setup = dataset.metadata.get("setup", EYE_IN_HAND)
+    if setup not in SETUPS:
+        raise DatasetError(
+            f"{dataset.root / 'dataset.json'}: field 'setup' should be one of {', '.join(SETUPS)}, "
+            f"got {setup!r}"
+        )
+    return setup
 
 
 def dataset_robot_noise(dataset: Dataset) -> RobotPoseNoise:
@@ -112,8 +133,9 @@ class MarkerMeasurement:
 
 @dataclass
 class FrameMeasurements:
-    """The usable markers of one frame. T_base_flange: (4, 4) as the robot reported it. joints:
-    (6,) the reported joint angles (radians) it was computed from, when known."""
+    """The usable markers of one frame. T_base_flange: (4, 4) the model pose, as the robot reported
+    it (eye-in-hand) or its inverse T_flange_base (eye-to-hand: hec.estimator.solve.setup_roles).
+    joints: (6,) the reported joint angles (radians) it was computed from, when known."""
 
     frame: int
     T_base_flange: np.ndarray
@@ -169,7 +191,10 @@ class CalibrationProblem:
     exp(s) (tx x + ty y) for a point (x, y, z) in the camera frame (a depth-to-colour
     registration turned by about (ty, -tx) radians about the camera's x and y; none by
     default). kinematics: the nominal model the reported poses were computed with (every
-    frame then has its joints), or None."""
+    frame then has its joints), or None. arm_name: the arm the dataset declares (named in
+    warnings), or None. setup: 'eye-in-hand', or 'eye-to-hand', whose frames hold the inverted
+    flange poses and whose unknowns T_flange_cam and T_base_board are T_base_cam and
+    T_flange_board (hec.estimator.solve.setup_roles)."""
 
     intrinsics: CameraIntrinsics
     board: Target
@@ -181,6 +206,8 @@ class CalibrationProblem:
     board_bend_m: tuple[float, float] = (0.0, 0.0)
     depth_tilt: tuple[float, float] = (0.0, 0.0)
     kinematics: URKinematics | None = None
+    arm_name: str | None = None
+    setup: str = EYE_IN_HAND
 
     @property
     def points_per_marker(self) -> int:
@@ -256,12 +283,16 @@ def build_problem(
     robot_noise: RobotPoseNoise | None = None,
     use_depth: bool = True,
     arm: ReportedArm | None = None,
+    arm_name: str | None = None,
+    setup: str = EYE_IN_HAND,
 ) -> CalibrationProblem:
     """Validate observations and turn them into whitened measurements.
 
     Frames with a problem or without markers are left out (listed in ``rejected``). With arm, the
     frames keep their joints and the problem the arm's kinematics (unless a frame's joints are
-    missing or not finite).
+    missing or not finite). arm_name: the arm the dataset declares (dataset_arm_name; default
+    arm's). setup 'eye-to-hand': the frames hold the inverted reported poses
+    (hec.estimator.solve.setup_roles).
     Raises CalibrationInputError for NaNs, markers that are not on the board, or
     fewer than MIN_FRAMES usable frames.
     """
@@ -284,7 +315,11 @@ def build_problem(
             + (f" ({'; '.join(rejected[:3])})" if rejected else "")
         )
     markers = iter(_markers([(obs.frame, m) for obs, _ in usable for m in obs.markers], board, use_depth))
-    frames = [FrameMeasurements(obs.frame, T, [next(markers) for _ in obs.markers]) for obs, T in usable]
+    check_setup(setup)
+    frames = [
+        FrameMeasurements(obs.frame, model_pose(setup, T), [next(markers) for _ in obs.markers])
+        for obs, T in usable
+    ]
     marker_ids = sorted({m.marker_id for f in frames for m in f.markers})
     kinematics = None
     if arm is not None:
@@ -300,6 +335,8 @@ def build_problem(
         marker_ids,
         rejected,
         kinematics=kinematics,
+        arm_name=arm_name or (None if arm is None else arm.kinematics.name),
+        setup=setup,
     )
 
 

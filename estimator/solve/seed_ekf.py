@@ -56,6 +56,7 @@ from hec.estimator.solve.filters import GATE_PROBABILITY
 from hec.estimator.solve.initialise import initial_state
 from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
+from hec.estimator.solve.setup_roles import model_pose_covariance
 
 INITIAL_SIGMA_M = 0.05
 INITIAL_SIGMA_RAD = float(np.radians(5.0))
@@ -256,7 +257,14 @@ def initial_filter_state(problem: CalibrationProblem, options: MethodOptions) ->
     P[POSE, POSE] = P_X
     # X0 is the camera pose with the flange at the identity; moving the flange to F_0 gives F_0 X0.
     at_identity = SeedEkfState(X0, np.zeros(6), np.zeros((k, 3)), np.zeros(k, dtype=bool), P)
-    return predict(at_identity, np.eye(4), problem.frames[0].T_base_flange, problem.robot_noise.covariance())
+    F_0 = problem.frames[0].T_base_flange
+    return predict(at_identity, np.eye(4), F_0, _robot_covariance(problem, F_0))
+
+
+def _robot_covariance(problem: CalibrationProblem, T_model: np.ndarray) -> np.ndarray:
+    """(6, 6) the covariance of the error of a frame's model pose T_model (4, 4), the error this
+    filter carries (hec.estimator.solve.setup_roles.model_pose_covariance)."""
+    return model_pose_covariance(problem.setup, T_model, problem.robot_noise.covariance())
 
 
 def _depth_points(
@@ -290,13 +298,13 @@ def filter_steps(
     problem: CalibrationProblem, options: MethodOptions, observations: list[FrameObservations]
 ) -> Iterator[FrameStep]:
     """Run the filter over problem.frames in order, yielding after each frame."""
-    robot_cov = problem.robot_noise.covariance()
     state = initial_filter_state(problem, options)
     previous = None
     for frame, (ids, points, covs, no_depth) in zip(
         problem.frames, _depth_points(problem, observations), strict=True
     ):
         if previous is not None:
+            robot_cov = _robot_covariance(problem, frame.T_base_flange)
             state = predict(state, previous.T_base_flange, frame.T_base_flange, robot_cov)
         previous = frame
         rows = np.array([problem.marker_index(i) for i in ids], dtype=int)

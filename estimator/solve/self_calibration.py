@@ -48,11 +48,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from hec.estimator.geometry.kinematics import URKinematics, forward
-from hec.estimator.geometry.lie import pose_minus, pose_plus, so3_exp, so3_right_jacobian
+from hec.estimator.geometry.lie import pose_minus, so3_exp, so3_right_jacobian
 from hec.estimator.solve.batch import BatchObjective, OutsideModel
 from hec.estimator.solve.block_arrow import BlockLayout
 from hec.estimator.solve.measurement_model import camera_jacobian_rows
 from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.setup_roles import flange_minus, flange_plus
 
 # The camera, board and depth corrections, in the order of predict_frame's J_camera columns.
 CAMERA_NUISANCE = (
@@ -235,7 +236,8 @@ def adjusted_problem(
         ]
         T = f.T_base_flange
         if corrected is not None:
-            T = pose_plus(T, pose_minus(forward(corrected, f.joints), forward(problem.kinematics, f.joints)))
+            correction = pose_minus(forward(corrected, f.joints), forward(problem.kinematics, f.joints))
+            T = flange_plus(problem.setup, T, correction)
         frames.append(replace(f, markers=markers, T_base_flange=T))
     depth_bias = (t.get("depth_scale", 0.0), t.get("depth_offset_m", 0.0))
     bend = (t.get("board_bend_x_m", 0.0), t.get("board_bend_y_m", 0.0))
@@ -432,7 +434,7 @@ class SelfCalibrationObjective:
     def _flange_step(self, i: int, T_adjusted: np.ndarray, delta: np.ndarray | None) -> np.ndarray:
         """(6, 6) d(local perturbation of frame i's flange pose, pose_plus(T_adjusted, delta)) / d(its
         kinematic correction a, T_adjusted = pose_plus(reported, a))."""
-        a = pose_minus(T_adjusted, self.base.frames[i].T_base_flange)
+        a = flange_minus(self.base.setup, T_adjusted, self.base.frames[i].T_base_flange)
         step = np.eye(6)
         rotation = so3_right_jacobian(a[3:])
         step[3:, 3:] = rotation if delta is None else so3_exp(delta[3:]).T @ rotation

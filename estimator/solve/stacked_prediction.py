@@ -9,7 +9,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import sparse
 
-from hec.estimator.geometry.lie import so3_exp_rows
 from hec.estimator.solve.measurement_model import (
     HandEyeState,
     PointPrediction,
@@ -18,6 +17,7 @@ from hec.estimator.solve.measurement_model import (
     whitened_point_rows,
 )
 from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.setup_roles import flange_plus_rows
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ def predict_frames(
     measurement_model.camera_jacobian_rows needs when camera)."""
     R_F, t_F = stacked.T_base_flange[:, :3, :3], stacked.T_base_flange[:, :3, 3]
     if deltas is not None:
-        R_F, t_F = R_F @ so3_exp_rows(deltas[:, 3:]), t_F + deltas[:, :3]
+        R_F, t_F = flange_plus_rows(problem.setup, R_F, t_F, deltas)
     frame = stacked.frame_of_point
     pred = predict_points(problem, state, stacked.points, R_F[frame], t_F[frame], jacobians, camera)
     residual = stacked.whitening @ (stacked.measured - pred.predicted[stacked.selected])

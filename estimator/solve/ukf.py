@@ -94,7 +94,6 @@ import time
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
-from hec.estimator.geometry.lie import pose_plus
 from hec.estimator.solve.calibration import Calibration, MethodOptions, calibration_from_state
 from hec.estimator.solve.filters import (
     IEKF_MAX_ITERATIONS,
@@ -108,6 +107,7 @@ from hec.estimator.solve.filters import (
 from hec.estimator.solve.initialise import initial_state
 from hec.estimator.solve.measurement_model import HandEyeState, base_points, marker_points, measurements
 from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
+from hec.estimator.solve.setup_roles import flange_plus
 
 # Sigma points at +-SPREAD standard deviations: n_a + lambda = SPREAD^2 (see the module doc).
 SPREAD = 1e-3
@@ -149,7 +149,7 @@ def whitened_residuals(
         p_cam = np.empty((len(A), len(points), 3))
         for k, (m, a) in enumerate(zip(moved, A, strict=True)):
             T_F = (
-                pose_plus(frame.T_base_flange, a[n + 6 * j : n + 6 * j + 6])
+                flange_plus(problem.setup, frame.T_base_flange, a[n + 6 * j : n + 6 * j + 6])
                 if with_robot
                 else frame.T_base_flange
             )

@@ -9,6 +9,10 @@ pose is reachable within the joint limits (and, given one, inside the workspace 
 information is what one exact frame of it adds to the batch state (mount, board pose), with the
 flange pose noise marginalised (hec.estimator.solve.observability.frame_information).
 
+Eye-to-hand (setup 'eye-to-hand') the camera is fixed and the board rides on the flange: the same
+functions take T_flange_cam = T_base_cam and T_base_board = T_flange_board (the roles swapped,
+hec.estimator.solve.setup_roles) and return flange poses that put the board before the camera.
+
 Selection adds, one at a time, the candidate that most improves a criterion of the mount's
 information (the state's, the board pose eliminated by its Schur complement):
 - "d-optimal": the log-determinant (the volume of the bound's ellipsoid);
@@ -25,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hec.estimator.common.setups import EYE_IN_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import URKinematics, solve_ik_nearest
 from hec.estimator.geometry.transforms import invert
@@ -33,6 +38,7 @@ from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observatio
 from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.observability import frame_information
 from hec.estimator.solve.problem import build_problem
+from hec.estimator.solve.setup_roles import model_pose
 from hec.estimator.targets.target import Target
 
 CRITERIA = ("d-optimal", "worst-direction")
@@ -71,10 +77,11 @@ def candidate_views(
     count: int,
     rng: np.random.Generator,
     view_range: ViewRange = ViewRange(),
+    setup: str = EYE_IN_HAND,
 ) -> list[Waypoint]:
     """count random flange-pose waypoints (base frame) whose camera, mounted as T_flange_cam (4, 4),
     looks at the centre of the board at T_base_board (4, 4) from within view_range of the nominal
-    distance_m."""
+    distance_m (eye-to-hand: the module doc)."""
     near, far = (f * distance_m for f in view_range.distance_factors)
     waypoints = []
     for i in range(count):
@@ -82,7 +89,8 @@ def candidate_views(
         azimuth = rng.uniform(0.0, 360.0)
         roll = rng.uniform(-view_range.max_roll_deg, view_range.max_roll_deg)
         distance = rng.uniform(near, far)
-        T_base_flange = T_base_board @ look_at_board(tilt, azimuth, roll, distance) @ invert(T_flange_cam)
+        T_model = T_base_board @ look_at_board(tilt, azimuth, roll, distance) @ invert(T_flange_cam)
+        T_base_flange = model_pose(setup, T_model)
         label = f"candidate {i}: tilt {tilt:.1f} az {azimuth:.1f} roll {roll:.1f} at {distance:.3f} m"
         waypoints.append(Waypoint(i, label, T_base_flange=T_base_flange))
     return waypoints
@@ -111,6 +119,7 @@ def view_informations(
     T_base_board: np.ndarray,
     noise: SyntheticNoise,
     use_depth: bool = True,
+    setup: str = EYE_IN_HAND,
 ) -> tuple[list[int], np.ndarray]:
     """The waypoints whose views hold every marker VIEW_MARGIN_PX inside the image (their indices
     into waypoints) and the (n, 12, 12) information each adds to the state (mount, board pose;
@@ -126,11 +135,13 @@ def view_informations(
         None,
         exact=True,
         margin_px=VIEW_MARGIN_PX,
+        setup=setup,
     )
     whole = [i for i, o in enumerate(observations) if len(o.markers) == len(board.marker_ids)]
     if not whole:
         return [], np.zeros((0, 12, 12))
-    problem = build_problem([observations[i] for i in whole], board, intrinsics, noise.robot, use_depth, None)
+    chosen = [observations[i] for i in whole]
+    problem = build_problem(chosen, board, intrinsics, noise.robot, use_depth, None, setup)
     state = HandEyeState(T_flange_cam, T_base_board=T_base_board)
     return whole, np.array([frame_information(problem, state, f) for f in problem.frames])
 

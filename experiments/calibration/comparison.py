@@ -31,6 +31,9 @@ def _comparison_row(r: Result, T_true: np.ndarray | None, earlier: dict[str, str
     if T_true is not None:
         e = ground_truth_errors(r, T_true)
         row += f" {e['error_translation_mm']:>9.3f} {e['error_rotation_deg']:>9.4f}"
+    assumptions = r.diagnostics.get("assumptions")
+    if assumptions is not None and not assumptions.holds:
+        row += "  its assumptions fail here: biased, do not use (warning below)"
     return row
 
 

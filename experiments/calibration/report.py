@@ -13,6 +13,7 @@ import numpy as np
 from hec.calibration.loo import format_loo, loo_to_dict
 from hec.estimator.common.files import check_output_file, write_atomic
 from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.common.setups import BOARD_POSE_NAMES, EYE_TO_HAND, HAND_EYE_MEANINGS, HAND_EYE_NAMES
 from hec.estimator.geometry.lie import pose_minus, so3_log
 from hec.estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
 from hec.estimator.solve.calibration import Calibration
@@ -151,7 +152,10 @@ def _format_uncertainty(cal: Calibration) -> list[str]:
         lines.append("Cramer-Rao bound: not finite, the mount is not observable from these views")
     if cal.depth_scale is not None:
         sigma = "" if cal.depth_scale_sigma is None else f" +- {cal.depth_scale_sigma:.6f}"
-        lines.append(f"depth scale: {cal.depth_scale:.6f}{sigma} (true depth = scale x measured)")
+        lines.append(
+            f"depth scale: {cal.depth_scale:.6f}{sigma} (measured depth = scale x true depth: divide "
+            "measured depths by it)"
+        )
     return lines
 
 
@@ -284,6 +288,14 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
     }
     if T_true is not None:
         data |= ground_truth_errors(cal, T_true)
+    if cal.setup == EYE_TO_HAND:  # the unknowns under their own names (setup_roles)
+        data = {
+            "setup": cal.setup,
+            **{HAND_EYE_NAMES[cal.setup] if k == "T_flange_cam" else k: v for k, v in data.items()},
+        }
+        data["transform"] = f"{HAND_EYE_NAMES[cal.setup]}: {HAND_EYE_MEANINGS[cal.setup]}"
+        data[BOARD_POSE_NAMES[cal.setup]] = data.pop("T_base_board")
+        data["covariance_convention"] = COVARIANCE_CONVENTION.replace("the flange axes", "the base axes")
     return data
 
 

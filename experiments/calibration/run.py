@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 from tqdm import tqdm
@@ -20,12 +21,18 @@ from hec.calibration.loo import (
     self_calibrated_model,
 )
 from hec.calibration.report import MethodFailure, Result, add_pick_error
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
+from hec.estimator.geometry.transforms import invert
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.observations import FrameObservations
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.methods import needs_learned_noise, run_method
 from hec.estimator.solve.noise_learning import LearnedNoise, learn_noise
 from hec.estimator.solve.problem import CalibrationInputError, CalibrationProblem
+
+# The closed forms the poses are checked with before any estimation, in order (each takes
+# milliseconds); Park alone finds no mount on some data the others fit.
+CHECK_METHODS = ("opencv-park", "opencv-tsai", "opencv-horaud")
 
 
 def run_methods(
@@ -105,37 +112,75 @@ def _loo_models(
     return [declared_model(problem, options)]
 
 
-def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
-    """Fail in seconds, before any estimation, when the robot poses do not fit the images at any mount:
-    OpenCV's Park method (milliseconds) leaves MAX_CORNER_RMS_PX or more. The error says why, with the
-    convention check of an imported dataset's pose numbers (hec.estimator.io.convention_check)."""
+SETUP_WORDS = {
+    EYE_IN_HAND: "the camera on the flange, the board fixed",
+    EYE_TO_HAND: "the camera fixed in the cell, the board on the flange",
+}
+
+
+def _other_setup_fits(problem: CalibrationProblem) -> str | None:
+    """The other set-up's name when OpenCV's Park method fits the frames in it (each flange pose
+    inverted: hec.estimator.solve.setup_roles) within MAX_CORNER_RMS_PX, else None."""
     from hec.estimator.solve.baselines import opencv_calibrate
     from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
 
+    other = EYE_TO_HAND if problem.setup == EYE_IN_HAND else EYE_IN_HAND
+    frames = [replace(f, T_base_flange=invert(f.T_base_flange), joints=None) for f in problem.frames]
+    swapped = replace(problem, frames=frames, setup=other, kinematics=None)
     try:
-        park = opencv_calibrate(problem, MethodOptions(), "opencv-park")
+        fits = opencv_calibrate(swapped, MethodOptions(), "opencv-park").residual_rms_px < MAX_CORNER_RMS_PX
     except CalibrationInputError:
-        return  # too few or degenerate views: each method says so itself
-    if park.residual_rms_px < MAX_CORNER_RMS_PX:
-        return
+        return None
+    return other if fits else None
+
+
+def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
+    """Fail in seconds, before any estimation, when the robot poses do not fit the images at any mount:
+    the best of OpenCV's closed forms (CHECK_METHODS, milliseconds each) leaves MAX_CORNER_RMS_PX or
+    more, or none of them finds a mount at all. The error says why: the other set-up when the poses
+    fit it (an eye-to-hand dataset read as eye-in-hand, or the other way round), else the convention
+    check of an imported dataset's pose numbers (hec.estimator.io.convention_check)."""
+    from hec.estimator.solve.baselines import opencv_calibrate
+    from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, rotation_spread
+    from hec.estimator.solve.methods import MAX_CORNER_RMS_PX
+
+    if rotation_spread([f.T_base_flange for f in problem.frames])[1] < MIN_AXIS_SPREAD:
+        return  # too little rotation to tell: each method says so itself
+    solved = []
+    for method in CHECK_METHODS:
+        try:
+            solved.append(opencv_calibrate(problem, MethodOptions(), method))
+        except CalibrationInputError:
+            continue  # no solution from this closed form: the next may find one
+        if solved[-1].residual_rms_px < MAX_CORNER_RMS_PX:
+            return
     from hec.estimator.io.convention_check import check_pose_convention, px_text
 
     record = dataset.metadata.get("provenance") or {}
-    if "pose_values" in record:
+    other = _other_setup_fits(problem)
+    if other is not None:
+        why = (
+            f'they fit the {other} set-up ({SETUP_WORDS[other]}): record "setup": "{other}" in '
+            f"{dataset.root / 'dataset.json'} (hec import --setup {other})"
+        )
+    elif "pose_values" in record:
         from hec.estimator.io.pose_file import PoseConvention
 
         stated = PoseConvention(**record["pose_convention"])
         why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
     else:
         why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
-    from hec.estimator.solve.misfit import disagreeing_frames
+    best = min(solved, key=lambda c: c.residual_rms_px, default=None)
+    best_text = f"none of {', '.join(CHECK_METHODS)} finds a mount"
+    if best is not None:
+        from hec.estimator.solve.misfit import disagreeing_frames
 
-    frames = ", ".join(
-        f"frame {f} ({1e3 * m:.0f} mm)" for f, m in disagreeing_frames(problem, park.T_flange_cam)
-    )
-    why += f"; the frames that disagree most, by how far from the others each puts the board: {frames}"
+        best_text = f"the best closed-form mount leaves {px_text(best.residual_rms_px)} RMS"
+        frames = ", ".join(
+            f"frame {f} ({1e3 * m:.0f} mm)" for f, m in disagreeing_frames(problem, best.T_flange_cam)
+        )
+        why += f"; the frames that disagree most, by how far from the others each puts the board: {frames}"
     raise CalibrationInputError(
-        "the robot poses do not fit the images at any mount (the best closed-form mount leaves "
-        f"{px_text(park.residual_rms_px)} RMS, {MAX_CORNER_RMS_PX:.0f} px is the most any model explains); "
-        + why
+        f"the robot poses do not fit the images at any mount ({best_text}; {MAX_CORNER_RMS_PX:.0f} px RMS is "
+        f"the most any model explains); {why}"
     )

@@ -21,6 +21,7 @@ import numpy as np
 
 from hec.calibration.loo import LOO_KEY, MISFIT_RATIO
 from hec.calibration.report import format_matrix, format_vector, ground_truth_errors, pick_dict, pose_numbers
+from hec.estimator.common.setups import HAND_EYE_MEANINGS
 from hec.estimator.solve.baselines import MISFIT_RESIDUAL_PX
 from hec.estimator.solve.calibration import Calibration
 from hec.estimator.solve.cross_validation import CrossValidation
@@ -99,8 +100,7 @@ def format_summary(cal: Calibration, T_true: np.ndarray | None = None) -> str:
         "" if cal.covariance is None else f"; 1 sigma deg {format_vector(cal.sigma_rotation_deg, '.4f')}"
     )
     lines = [
-        f"T_flange_cam by {cal.method} (camera optical frame in the flange frame, OpenCV's cam2gripper; "
-        "T_base_cam = T_base_flange @ T_flange_cam):",
+        f"{cal.hand_eye_name} by {cal.method} ({HAND_EYE_MEANINGS[cal.setup]}):",
         f"  translation [mm] {format_vector(n['translation_mm'], '+.3f')}{sigma_t}",
         f"  rotation vector [rad] {format_vector(n['rotation_vector_rad'], '+.6f')} "
         f"(angle {n['rotation_angle_deg']:.4f} deg{sigma_r})",

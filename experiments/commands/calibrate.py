@@ -46,7 +46,9 @@ from hec.estimator.solve.problem import (
     CalibrationProblem,
     build_problem,
     dataset_arm,
+    dataset_arm_name,
     dataset_robot_noise,
+    dataset_setup,
 )
 from hec.support.detection import cached_or_detected
 
@@ -249,7 +251,14 @@ def calibrate_dataset(
     if not settings.use_depth:
         observations = without_depth(observations)
     problem = build_problem(
-        observations, dataset.board, dataset.intrinsics, noise, settings.use_depth, dataset_arm(dataset)
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        noise,
+        settings.use_depth,
+        dataset_arm(dataset),
+        arm_name=dataset_arm_name(dataset),
+        setup=dataset_setup(dataset),
     )
     _note_ignored_options(settings)
     check_poses_fit(dataset, problem)
@@ -262,7 +271,7 @@ def calibrate_dataset(
         for line in convention_lines(dataset, problem, [MethodFailure(settings.method, str(exc))]):
             print(line)
         raise
-    T_true = None if dataset.ground_truth is None else dataset.ground_truth.T_flange_cam
+    T_true = None if dataset.ground_truth is None else dataset.ground_truth.hand_eye
     if settings.verbose or settings.method == ALL_METHODS:
         _print_header(dataset, problem, observations, settings, source, noise_source)
     if settings.method == ALL_METHODS:

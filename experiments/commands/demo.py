@@ -43,7 +43,11 @@ def run_simulate(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as exc:
         print(f"\ninterrupted: nothing written to {args.out}", file=sys.stderr)
         return interrupts.interrupted_exit_code(exc)
-    _print_simulation(result, scenario.mount.transform())
+    if scenario.eye_to_hand:
+        what = "T_base_cam (camera optical frame in the base frame; eye-to-hand)"
+        _print_simulation(result, scenario.stand.transform(), what)
+    else:
+        _print_simulation(result, scenario.mount.transform())
     if args.command == "demo":
         _demo_detect_and_calibrate(result.out_dir)
         print(f"\n{IDEAL_CELL_NOTE}")
@@ -54,14 +58,20 @@ def _format_matrix(T: np.ndarray) -> str:
     return "\n".join("  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T)
 
 
-def _print_simulation(result: object, T_flange_cam: np.ndarray) -> None:
-    t, q = xyz_quat_from_transform(T_flange_cam)
-    rpy = np.degrees(rpy_from_transform(T_flange_cam))
+def _print_simulation(
+    result: object,
+    T_hand_eye: np.ndarray,
+    what: str = "T_flange_cam (camera optical frame in the flange/tool0 frame; OpenCV: cam2gripper)",
+) -> None:
+    """The dataset written, its skipped waypoints and the true transform to calibrate, T_hand_eye
+    (4, 4), which is what says."""
+    t, q = xyz_quat_from_transform(T_hand_eye)
+    rpy = np.degrees(rpy_from_transform(T_hand_eye))
     print(f"dataset: {result.out_dir}  ({result.frames} frames, {len(result.skipped)} waypoints skipped)")
     for index, reason in result.skipped:
         print(f"  skipped waypoint {index}: {reason}")
-    print("ground truth T_flange_cam (camera optical frame in the flange/tool0 frame; OpenCV: cam2gripper):")
-    print(_format_matrix(T_flange_cam))
+    print(f"ground truth {what}:")
+    print(_format_matrix(T_hand_eye))
     print(f"  translation [mm]: {t[0] * 1000:+.3f} {t[1] * 1000:+.3f} {t[2] * 1000:+.3f}")
     print(f"  quaternion (w x y z): {q[0]:+.6f} {q[1]:+.6f} {q[2]:+.6f} {q[3]:+.6f}")
     print(f"  roll-pitch-yaw [deg]: {rpy[0]:+.4f} {rpy[1]:+.4f} {rpy[2]:+.4f}")

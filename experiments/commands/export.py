@@ -24,7 +24,7 @@ from hec.estimator.io.calibration_file import (
     pose_field,
     read_calibration,
 )
-from hec.estimator.io.export import FORMATS, Export, export_text, realsense_link_optical
+from hec.estimator.io.export import FORMATS, PARENT_FRAMES, Export, export_text, realsense_link_optical
 
 DEFAULT_CHILD = {"urdf": "camera_link"}  # other formats: the optical frame
 OPTICAL_FRAME = "camera_color_optical_frame"
@@ -37,7 +37,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help=HELP["export"])
     p.add_argument("calibration", type=Path, help="a hec calibrate --json output")
     p.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=", ".join(FORMATS))
-    p.add_argument("--parent", default="tool0", help="parent frame (default: %(default)s)")
+    p.add_argument(
+        "--parent",
+        help="parent frame (default: tool0; base_link for an eye-to-hand calibration, the camera fixed in "
+        "the cell)",
+    )
     p.add_argument(
         "--child",
         help=f"child frame (default: camera_link for urdf, else {OPTICAL_FRAME}); a name not ending in "
@@ -115,10 +119,11 @@ def run(args: argparse.Namespace) -> int:
         refuse_writing_over_inputs(args.out, inputs)
     cal = read_calibration(args.calibration, args.method)
     child = args.child if args.child is not None else DEFAULT_CHILD.get(args.to, OPTICAL_FRAME)
-    export = Export(cal, args.parent, child)
+    parent = args.parent if args.parent is not None else PARENT_FRAMES[cal.setup]
+    export = Export(cal, parent, child)
     if export.composes_link:
         T, source = link_optical(args, cal)
-        export = Export(cal, args.parent, child, T, source)
+        export = Export(cal, parent, child, T, source)
         if source == DEFAULT_LINK:
             print(
                 f"note: '{child}' -> optical frame taken as {DEFAULT_LINK}; give --link-optical-values "
@@ -133,5 +138,5 @@ def run(args: argparse.Namespace) -> int:
     if args.out is None:
         sys.stdout.write(text)
     else:
-        print(f"wrote {write_atomic(args.out, text)} ({args.to}: T_{args.parent}_{child})")
+        print(f"wrote {write_atomic(args.out, text)} ({args.to}: T_{parent}_{child})")
     return 0

@@ -18,6 +18,7 @@ import numpy as np
 from hec.commands import arguments
 from hec.commands.verbs import HELP
 from hec.estimator.common.files import refuse_writing_over_inputs
+from hec.estimator.common.setups import EYE_IN_HAND, SETUPS
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS, arm_dict
 from hec.estimator.geometry.transforms import invert
@@ -45,6 +46,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
     p.add_argument("--force", action="store_true", help="replace --out if it exists")
     p.add_argument("--board", help="board name in models/boards/ or a board file (required with images)")
+    p.add_argument(
+        "--setup",
+        choices=SETUPS,
+        default=EYE_IN_HAND,
+        help="eye-in-hand (the camera on the flange, default) or eye-to-hand (the camera fixed in the cell, "
+        "the board on the flange; image layouts): recorded in the dataset, which hec calibrate then solves",
+    )
     p.add_argument("--intrinsics", type=Path, help="OpenCV FileStorage YAML/JSON or ROS camera_info YAML")
     p.add_argument(
         "--camera",
@@ -140,6 +148,10 @@ def run(args: argparse.Namespace) -> int:
     refuse_writing_over_inputs(args.out, inputs)
     try:
         if args.layout == "easy_handeye2":
+            if args.setup != EYE_IN_HAND:
+                raise ValueError(
+                    "--setup eye-to-hand is for image imports: hec calibrates pose pairs eye-in-hand only"
+                )
             pairs = _directed(read_easy_handeye_samples(args.source), args)
             board = find_board(args.board) if args.board else None
             intrinsics = _intrinsics(args, required=False)
@@ -193,6 +205,8 @@ def run(args: argparse.Namespace) -> int:
             joint_file, frames = None, read_visp(args.source)
             sources = [args.source]
         extra = {} if arm is None else {"robot_model": arm.name}
+        if args.setup != EYE_IN_HAND:
+            extra["setup"] = args.setup
         depth_noise = _depth_noise(args)
         if depth_noise is not None:
             extra["depth_noise"] = depth_noise.to_dict()
@@ -309,7 +323,7 @@ def check_import(dataset_path: Path, quiet: bool = False, shown_as: Path | None 
     its board file and its joints (if any): the lines to print. shown_as: the folder the dataset
     will be at, for the lines (the check runs before it is moved there)."""
     from hec.estimator.io.convention_check import check_board_layout, check_pose_convention
-    from hec.estimator.solve.problem import build_problem, dataset_robot_noise
+    from hec.estimator.solve.problem import build_problem, dataset_robot_noise, dataset_setup
     from hec.estimator.targets.qr import DetectorSettings
     from hec.support.detection import detect_and_cache
 
@@ -323,7 +337,13 @@ def check_import(dataset_path: Path, quiet: bool = False, shown_as: Path | None 
     ]
     record = dataset.metadata["provenance"]
     stated = PoseConvention(**record["pose_convention"])
-    problem = build_problem(observations, dataset.board, dataset.intrinsics, dataset_robot_noise(dataset))
+    problem = build_problem(
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        dataset_robot_noise(dataset),
+        setup=dataset_setup(dataset),
+    )
     report = check_pose_convention(problem, record["pose_values"], stated)
     lines.append(f"convention check: {report.message}")
     lines.append(f"board check: {check_board_layout(problem)}")

@@ -26,12 +26,19 @@ import numpy as np
 from hec.commands import arguments
 from hec.commands.verbs import HELP
 from hec.estimator.common.files import check_output_file, refuse_writing_over_inputs, write_atomic
+from hec.estimator.common.setups import BOARD_POSE_NAMES, EYE_IN_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
 from hec.estimator.geometry.transforms import invert
-from hec.estimator.geometry.waypoints import Waypoint, rotation_rich_waypoints, waypoint_csv
+from hec.estimator.geometry.waypoints import (
+    Waypoint,
+    eye_to_hand_waypoints,
+    rotation_rich_waypoints,
+    waypoint_csv,
+)
 from hec.estimator.observe.synthetic import SyntheticNoise
 from hec.estimator.solve.methods import METHODS
+from hec.estimator.solve.setup_roles import model_pose
 from hec.estimator.solve.view_planning import (
     CRITERIA,
     candidate_views,
@@ -119,8 +126,9 @@ def _count_and_target(args: argparse.Namespace) -> tuple[int, tuple[float, float
 @dataclass(frozen=True)
 class PlanningCell:
     """What planning needs of a cell: the board and camera, the nominal T_flange_cam and T_base_board
-    ((4, 4), metres), a frame's noise, the nominal distance to the board (m), accepts (True when the
-    arm can take a view from the last view accepted) and the views to compare with (name, waypoints)."""
+    ((4, 4), metres; eye-to-hand T_base_cam and T_flange_board, hec.estimator.solve.setup_roles), a
+    frame's noise, the nominal distance to the board (m), accepts (True when the arm can take a view
+    from the last view accepted), the views to compare with (name, waypoints) and the set-up."""
 
     board: Target
     intrinsics: CameraIntrinsics
@@ -130,6 +138,7 @@ class PlanningCell:
     distance_m: float
     accepts: Callable[[Waypoint], bool]
     reference: tuple[str, list[Waypoint]]
+    setup: str = EYE_IN_HAND
 
 
 def scenario_candidates(scenario: Scenario, count: int, rng: np.random.Generator) -> list[Waypoint]:
@@ -149,12 +158,16 @@ def simulated_cell(args: argparse.Namespace) -> PlanningCell:
     from hec.sim.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
-    T_base_board, T_flange_cam = scenario.board.transform(), scenario.mount.transform()
     noise = SyntheticNoise(
         args.corner_sigma_px, depth_noise_model(scenario.noise), robot_pose_noise_model(scenario.noise)
     )
     distance = scenario.trajectory.distance_m
-    default = rotation_rich_waypoints(T_base_board, T_flange_cam, distance)
+    if scenario.eye_to_hand:  # the roles swapped (setup_roles)
+        T_base_board, T_flange_cam = scenario.board_mount.transform(), scenario.stand.transform()
+        default = eye_to_hand_waypoints(T_flange_cam, T_base_board, distance)
+    else:
+        T_base_board, T_flange_cam = scenario.board.transform(), scenario.mount.transform()
+        default = rotation_rich_waypoints(T_base_board, T_flange_cam, distance)
     cell = SimCell(scenario, np.random.default_rng(scenario.seed))
     return PlanningCell(
         scenario.board_definition(),
@@ -165,6 +178,7 @@ def simulated_cell(args: argparse.Namespace) -> PlanningCell:
         distance,
         cell.accepts,
         (f"the default {len(default)} views", default),
+        scenario.setup,
     )
 
 
@@ -183,12 +197,13 @@ def calibrated_cell(args: argparse.Namespace) -> PlanningCell:
             f"{args.calibration}: calibrated with the robot's {cal.pose_frame} poses; plan from a "
             "calibration of flange poses (the waypoints are flange poses)"
         )
-    if cal.data.get("T_base_board") is None:
+    board_key = BOARD_POSE_NAMES[cal.setup]  # eye-to-hand T_flange_board, in T_base_board's role
+    if cal.data.get(board_key) is None:
         raise CalibrationFileError(
-            f"{args.calibration}: the {cal.method} result has no board pose (T_base_board); plan from a "
+            f"{args.calibration}: the {cal.method} result has no board pose ({board_key}); plan from a "
             "method that estimates one, such as the default"
         )
-    T_base_board = pose_field(cal.data, "T_base_board", cal.path, CalibrationFileError)
+    T_base_board = pose_field(cal.data, board_key, cal.path, CalibrationFileError)
     root = args.dataset if args.dataset is not None else cal.dataset
     if root is None:
         raise CalibrationFileError(
@@ -213,7 +228,8 @@ def calibrated_cell(args: argparse.Namespace) -> PlanningCell:
     ]
     T_cam_flange = invert(cal.T_flange_cam)
     distances = [
-        np.linalg.norm((T_cam_flange @ invert(w.T_base_flange) @ T_base_board)[:3, 3]) for w in recorded
+        np.linalg.norm((T_cam_flange @ invert(model_pose(cal.setup, w.T_base_flange)) @ T_base_board)[:3, 3])
+        for w in recorded
     ]
     noise = SyntheticNoise(args.corner_sigma_px, dataset_depth_noise(dataset), config.robot.pose_noise())
     return PlanningCell(
@@ -225,6 +241,7 @@ def calibrated_cell(args: argparse.Namespace) -> PlanningCell:
         float(np.median(distances)),
         accepts,
         (f"the {len(recorded)} views of {dataset.root}", recorded),
+        cal.setup,
     )
 
 
@@ -238,8 +255,10 @@ def run(args: argparse.Namespace) -> int:
     cell = calibrated_cell(args) if args.calibration is not None else simulated_cell(args)
     nominal = (cell.intrinsics, cell.T_flange_cam, cell.T_base_board, cell.noise)
     rng = np.random.default_rng(args.seed)
-    candidates = candidate_views(cell.T_base_board, cell.T_flange_cam, cell.distance_m, args.candidates, rng)
-    usable, informations = view_informations(candidates, cell.board, *nominal)
+    candidates = candidate_views(
+        cell.T_base_board, cell.T_flange_cam, cell.distance_m, args.candidates, rng, setup=cell.setup
+    )
+    usable, informations = view_informations(candidates, cell.board, *nominal, setup=cell.setup)
     steps = plan_views(
         informations, count, args.criterion, target, lambda k: cell.accepts(candidates[usable[k]])
     )
@@ -249,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
             "(reach, joint limits, workspace, collisions)"
         )
     name, reference = cell.reference
-    _, reference_informations = view_informations(reference, cell.board, *nominal)
+    _, reference_informations = view_informations(reference, cell.board, *nominal, setup=cell.setup)
     reference_mm, reference_deg = predicted_sigmas(reference_informations.sum(axis=0))
     waypoints = []
     print(f"{len(usable)} of {args.candidates} candidates hold the whole board in view; {args.criterion}:")

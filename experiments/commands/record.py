@@ -27,6 +27,7 @@ import numpy as np
 from hec.commands import arguments
 from hec.commands.verbs import HELP
 from hec.estimator.common.jsonfile import read_json_object
+from hec.estimator.common.setups import EYE_IN_HAND
 from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
 from hec.estimator.geometry.waypoints import (
     PlannedMove,
@@ -369,6 +370,8 @@ def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: Hardw
         "cell_config": config.to_dict(),
         "waypoint_file": str(args.waypoints),
     }
+    if config.setup != EYE_IN_HAND:
+        extra["setup"] = config.setup
     if cell.pose_frame == "tcp":
         extra["flange_pose"] = (
             "reported T_base_tcp: the controller's TCP (offset in cell.robot.T_flange_tcp) in the base "
@@ -410,6 +413,11 @@ def _session(
     waypoints (flange poses from forward_fk for joint waypoints); nominal: the (T_flange_cam,
     T_base_board) (4, 4) its first views are chosen at (None: spread over the pool)."""
     target = sigma_target(args)
+    if target is not None and extra.get("setup", EYE_IN_HAND) != EYE_IN_HAND:
+        raise RecordError(
+            "an adaptive session (--target-sigma-mm/--target-sigma-deg) chooses its views eye-in-hand only; "
+            "for a fixed camera give --waypoints (hec plan --scenario or --calibration writes them)"
+        )
     if target is not None and pool is None:
         pool = _pool(moves, forward_fk)
     if not (pool if target is not None else any(m.joints is not None for m in moves)):

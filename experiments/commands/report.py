@@ -17,6 +17,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add `hec report DIR`."""
     p = sub.add_parser("report", help=HELP["report"])
     p.add_argument("dir", type=Path, metavar="DIR", help="the --out folder of `hec sweep`")
+    p.add_argument(
+        "--page",
+        type=Path,
+        metavar="PATH.md",
+        help="also write the results as a Markdown page (e.g. docs/pages/results/error-budget.md)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,6 +38,14 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"report: {report.html} ({report.images} images embedded; plots in {report.html.parent / PLOTS_DIR})"
     )
+    if args.page is not None:
+        from hec.sweep.page import write_sweep_page
+
+        try:
+            print(f"page: {write_sweep_page(args.dir, report.summaries, args.page)}")
+        except OSError as exc:
+            print(f"hec: error: {args.page}: cannot write the page ({exc.strerror})", file=sys.stderr)
+            return 2
     return 0
 
 

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hec.commands.verbs import HELP
+from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
 
 if TYPE_CHECKING:
@@ -43,15 +44,17 @@ def _noise_line(cal: CalibrationFile) -> str:
     )
 
 
-def format_verification(v: Verification) -> list[str]:
-    """The report's lines after the header: the shift with its sigma, the test, the verdict."""
+def format_verification(v: Verification, setup: str = EYE_IN_HAND) -> list[str]:
+    """The report's lines after the header: the shift with its sigma, the test, the verdict. setup:
+    the calibration's (eye-to-hand: the fixed camera's shift along the base axes)."""
     from hec.calibration.report import format_vector
     from hec.estimator.solve.verify import format_verdict
 
     sigma = np.sqrt(np.diag(v.covariance_verify))
     mm, deg = v.test_sigma
     lines = [
-        f"mount from these frames alone (board pose free): shift [mm] along flange x y z "
+        f"{'camera' if setup == EYE_TO_HAND else 'mount'} from these frames alone (board pose free): shift "
+        f"[mm] along {'base' if setup == EYE_TO_HAND else 'flange'} x y z "
         f"{format_vector(1e3 * v.delta[:3], '+.3f')} (+- {format_vector(1e3 * sigma[:3], '.3f')}); "
         f"rotation [deg] about camera x y z {format_vector(np.degrees(v.delta[3:]), '+.4f')} "
         f"(+- {format_vector(np.degrees(sigma[3:]), '.4f')})",
@@ -72,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from hec.calibration.report import check_json_path, write_json
     from hec.estimator.common.files import refuse_writing_over_inputs
     from hec.estimator.io.dataset import dataset_inputs, load_dataset
-    from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+    from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise, dataset_setup
     from hec.estimator.solve.verify import format_verdict, verification_problem, verify_mount
     from hec.support.detection import cached_or_detected
 
@@ -88,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
             f"{args.calibration}: calibrated with the robot's {cal.pose_frame} poses, but {args.dataset} "
             f"records {pose_frame} poses"
         )
+    setup = dataset_setup(dataset)
+    if setup != cal.setup:
+        raise CalibrationFileError(
+            f"{args.calibration}: an {cal.setup} calibration, but {args.dataset} records an {setup} cell"
+        )
     observations, source = cached_or_detected(dataset, args.quiet)
     if not cal.use_depth:
         from hec.commands.calibrate import without_depth
@@ -100,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         dataset_robot_noise(dataset),
         cal.use_depth,
         dataset_arm(dataset),
+        setup,
     )
     v = verify_mount(
         verification_problem(problem, cal.noise), cal.T_flange_cam, cal.covariance, cal.depth_scale
@@ -113,13 +122,13 @@ def run(args: argparse.Namespace) -> int:
     for line in problem.rejected:
         print(f"  left out: {line}")
     print(_noise_line(cal))
-    print("\n".join(format_verification(v)))
+    print("\n".join(format_verification(v, cal.setup)))
     if dataset.ground_truth is not None:
         from hec.estimator.geometry.transforms import pose_error
 
-        dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.T_flange_cam)
+        dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.hand_eye)
         print(
-            f"vs ground truth: the verification cell's true mount is {1e3 * dt:.3f} mm and "
+            f"vs ground truth: the verification cell's true {cal.hand_eye_name} is {1e3 * dt:.3f} mm and "
             f"{np.degrees(dr):.4f} deg from the calibration"
         )
     if args.json is not None:

@@ -120,7 +120,11 @@ class CameraSection(Section):
 
 
 class CellConfig(Section):
+    """board: the printed board. setup: 'eye-in-hand' (the camera on the flange) or 'eye-to-hand' (the
+    camera fixed in the cell, the board on the flange; recorded in the dataset)."""
+
     board: str = "hec_8qr"
+    setup: Literal["eye-in-hand", "eye-to-hand"] = "eye-in-hand"
     robot: RobotSection = RobotSection()
     camera: CameraSection = CameraSection()
 

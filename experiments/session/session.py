@@ -33,7 +33,12 @@ from hec.estimator.observe.observations import (
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import run_method
-from hec.estimator.solve.problem import CalibrationInputError, build_problem, dataset_robot_noise
+from hec.estimator.solve.problem import (
+    CalibrationInputError,
+    build_problem,
+    dataset_robot_noise,
+    dataset_setup,
+)
 from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.target import Target
@@ -97,6 +102,7 @@ class LiveEstimate:
         self.board, self.intrinsics = dataset.board, dataset.intrinsics
         self.depth_noise = dataset_depth_noise(dataset)
         self.robot_noise = dataset_robot_noise(dataset)
+        self.setup = dataset_setup(dataset)
         self.settings = DetectorSettings()
         self.detector = detector_for(dataset.board, self.settings)
         self.method = method
@@ -117,7 +123,7 @@ class LiveEstimate:
         """The method's result over the given observations (default: every frame so far).
         Raises CalibrationInputError (too few usable frames) and the method's own errors."""
         observations = self.observations if observations is None else observations
-        problem = build_problem(observations, self.board, self.intrinsics, self.robot_noise)
+        problem = build_problem(observations, self.board, self.intrinsics, self.robot_noise, setup=self.setup)
         return run_method(self.method, problem, MethodOptions(learn_noise=False), observations)
 
     def history(self) -> list[tuple[int, Calibration]]:

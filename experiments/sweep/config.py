@@ -78,6 +78,7 @@ def scenario_defaults(scenario: Scenario) -> dict[str, Any]:
             tuple(n for n in ERROR_SOURCES if getattr(scenario.errors, n).enabled)
         ),
         "mount": "fixed",
+        "setup": scenario.setup,
         "board": scenario.board.definition,
     }
 
@@ -104,6 +105,7 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
         on = rgb.get("enabled", True) or params["rgb_sigma_grey"] > 0
         noise["rgb"] = {**rgb, "enabled": on, "sigma": params["rgb_sigma_grey"]}
     data["noise"] = noise
+    data["setup"] = params["setup"]
     if "board" in params:
         data["board"] = {**data.get("board", {}), "definition": params["board"]}
     if "error_sources" in params:

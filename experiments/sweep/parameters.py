@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from hec.estimator.common.setups import SETUPS
 from hec.estimator.geometry.waypoints import PAPER_OFFSETS_M, ROTATION_RICH_VIEWS
 
 MEASUREMENTS, RENDER = "measurements", "render"
@@ -149,7 +150,17 @@ PARAMETERS: dict[str, Parameter] = {
             BOTH,
             f"one of {', '.join(map(repr, MOUNTS))}",
             lambda v: v in MOUNTS,
-            "fixed: the scenario's T_flange_cam; random: a new one per trial near it (up to 50 mm, ~20 deg)",
+            "fixed: the scenario's T_flange_cam (eye-to-hand: its T_base_cam); random: a new one per "
+            "trial near it (up to 50 mm, ~20 deg)",
+        ),
+        Parameter(
+            "setup",
+            str,
+            BOTH,
+            f"one of {', '.join(map(repr, SETUPS))}",
+            lambda v: v in SETUPS,
+            "eye-in-hand (the camera on the flange, the board fixed) or eye-to-hand (the camera fixed "
+            "at the scenario's stand, the board on the flange at its board_mount); default the scenario's",
         ),
     )
 }

@@ -28,8 +28,8 @@ from hec.estimator.geometry.waypoints import (
     Waypoint,
     WaypointFileError,
     look_at_board,
-    paper_waypoints,
-    rotation_rich_waypoints,
+    rotation_rich_views,
+    translated_waypoints,
     write_waypoint_file,
 )
 from hec.estimator.io.dataset import load_dataset
@@ -130,8 +130,9 @@ def one_line(text: str) -> str:
 
 
 def _mount(scenario: Any, kind: str, rng: np.random.Generator) -> np.ndarray:
-    """T_flange_cam of a trial: the scenario's, or one drawn around it as random_mount draws it."""
-    T_fixed = scenario.mount.transform()
+    """The trial's camera: T_flange_cam (eye-to-hand T_base_cam) of the scenario, or one drawn around
+    it as random_mount draws it."""
+    T_fixed = scenario.stand.transform() if scenario.eye_to_hand else scenario.mount.transform()
     if kind == "fixed":
         return T_fixed
     from hec.support.synthetic_scenes import SCENARIO, random_mount
@@ -169,22 +170,41 @@ def _random_views(scenario: Any, board: Any, n: int, rng: np.random.Generator) -
     return views
 
 
+def _board_pose(scenario: Any) -> np.ndarray:
+    """(4, 4) the board's fixed pose: T_base_board, eye-to-hand T_flange_board."""
+    return scenario.board_mount.transform() if scenario.eye_to_hand else scenario.board.transform()
+
+
+def _flange_for_view(scenario: Any, X: np.ndarray, T_board_cam: np.ndarray) -> np.ndarray:
+    """(4, 4) T_base_flange that shows the camera X (T_flange_cam; eye-to-hand T_base_cam) the board
+    from T_board_cam (4, 4)."""
+    if scenario.eye_to_hand:
+        return X @ invert(T_board_cam) @ invert(scenario.board_mount.transform())
+    return scenario.board.transform() @ T_board_cam @ invert(X)
+
+
 def _flange_poses(scenario: Any, board: Any, params: dict, X: np.ndarray, rng: np.random.Generator) -> list:
     """The trial's true T_base_flange (4, 4) targets: the first `waypoints` views of its trajectory."""
-    T_base_board, distance = scenario.board.transform(), scenario.trajectory.distance_m
-    n = params["waypoints"]
+    distance, n = scenario.trajectory.distance_m, params["waypoints"]
     if params["trajectory"] == "random":
-        return [T_base_board @ T @ invert(X) for T in _random_views(scenario, board, n, rng)]
-    make = paper_waypoints if params["trajectory"] == "paper" else rotation_rich_waypoints
-    return [w.T_base_flange for w in make(T_base_board, X, distance)[:n]]
+        return [_flange_for_view(scenario, X, T) for T in _random_views(scenario, board, n, rng)]
+    if params["trajectory"] == "paper":
+        return [
+            w.T_base_flange
+            for w in translated_waypoints(_flange_for_view(scenario, X, look_at_board(0, 0, 0, distance)))[:n]
+        ]
+    return [_flange_for_view(scenario, X, T) for _, T in rotation_rich_views(distance)[:n]]
 
 
 def _with_depth_bias(observations: list, flange_true: list, X: np.ndarray, scenario: Any, board: Any) -> list:
     """Add the scenario's depth bias as the simulator does: z = scale * z_true + offset + noise."""
     bias, intrinsics = scenario.noise.depth_bias, scenario.camera.intrinsics()
-    T_base_board = scenario.board.transform()
     for obs in observations:
-        T_cam_board = invert(flange_true[obs.frame] @ X) @ T_base_board
+        F = flange_true[obs.frame]
+        if scenario.eye_to_hand:
+            T_cam_board = invert(X) @ F @ _board_pose(scenario)
+        else:
+            T_cam_board = invert(F @ X) @ _board_pose(scenario)
         for i, m in enumerate(obs.markers):
             p_board = np.vstack([board.marker_center(m.marker_id)[None], board.marker_corners(m.marker_id)])
             z_true = transform_points(T_cam_board, p_board)[:, 2]
@@ -203,17 +223,20 @@ def measurement_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator)
     flange_true = _flange_poses(scenario, board, task.parameters, X, rng)
     robot = robot_pose_noise_model(scenario.noise)
     noise = SyntheticNoise(task.parameters["pixel_sigma_px"], depth_noise_model(scenario.noise), robot)
-    T_base_board = scenario.board.transform()
-    observations = synthetic_observations(board, intrinsics, X, T_base_board, flange_true, noise, rng)
+    B = _board_pose(scenario)
+    observations = synthetic_observations(
+        board, intrinsics, X, B, flange_true, noise, rng, setup=scenario.setup
+    )
     if scenario.noise.depth_bias.enabled:
         observations = _with_depth_bias(observations, flange_true, X, scenario, board)
-    return observations, board, intrinsics, robot, None, X, T_base_board
+    return observations, board, intrinsics, robot, None, X, B
 
 
 def _trial_scenario(scenario: Any, T_flange_cam: np.ndarray, waypoint_file: Path, name: str) -> Any:
-    """The scenario with the mount T_flange_cam (4, 4) and the trajectory of waypoint_file."""
+    """The scenario with the mount T_flange_cam (4, 4) (eye-to-hand: the stand T_base_cam) and the
+    trajectory of waypoint_file."""
     data = scenario.to_dict()
-    data["mount"] = {
+    data["stand" if scenario.eye_to_hand else "mount"] = {
         "translation_m": [float(v) for v in T_flange_cam[:3, 3]],
         "rotation_rpy_deg": [float(v) for v in np.degrees(rpy_from_transform(T_flange_cam))],
     }
@@ -292,7 +315,7 @@ def render_inputs(task: TrialTask, scenario: Any, rng: np.random.Generator) -> t
     )
     truth, robot = dataset.ground_truth, dataset_robot_noise(dataset)
     arm = dataset_arm(dataset)
-    return observations, dataset.board, dataset.intrinsics, robot, arm, truth.T_flange_cam, truth.T_base_board
+    return observations, dataset.board, dataset.intrinsics, robot, arm, truth.hand_eye, truth.board_pose
 
 
 def _failed(base: dict, method: str, failure: str, crb: tuple[float, float], time_s: float) -> dict:
@@ -331,7 +354,7 @@ def run_trial(task: TrialTask) -> list[dict]:
     try:
         make = measurement_inputs if task.fidelity == MEASUREMENTS else render_inputs
         observations, board, intrinsics, robot, arm, X, T_base_board = make(task, scenario, rng)
-        problem = build_problem(observations, board, intrinsics, robot, arm=arm)
+        problem = build_problem(observations, board, intrinsics, robot, arm=arm, setup=scenario.setup)
     except (CalibrationInputError, SweepError) as exc:
         elapsed = time.perf_counter() - start
         return [_failed(base, m, str(exc), no_crb, elapsed) for m in task.methods]
