@@ -9,10 +9,13 @@ is given as advice (a cause and its fix) only when
   lens term (each dropped to first order: the group's estimate conditioned on the other at its
   declared value, from their joint covariance), it stays significant with the same sign; an
   alternative the data reject (its corrections differ from zero at GROUP_SIGNIFICANCE) is none;
-- its estimate is weakly correlated with every other group the data need (no correlation of
-  their parameters beyond CORRELATION_LIMIT): two such groups trading one for the other cannot both
-  be advice. A group the data do not need beside a well-determined one (intrinsics at zero beside
-  a print scale 18 sigma off) leaves the latter's marginal sigma to say how well it is known.
+- its estimate is weakly correlated with every other group the data need (the combination of its
+  parameters the finding stands out along, C_GG^-1 theta_G, correlated with no parameter of theirs
+  beyond CORRELATION_LIMIT; per parameter, one of the arm's 24 kinematic corrections that the
+  views cannot pin down would speak for the whole finding): two such groups trading one for the
+  other cannot both be advice. A group the data do not need beside a well-determined one
+  (intrinsics at zero beside a print scale 18 sigma off) leaves the latter's marginal sigma to say
+  how well it is known.
 
 Otherwise the views cannot tell it apart from the group it trades with, and the report says so,
 with what would separate them, instead of a fix. On a real set of 6 commanded views the board
@@ -68,9 +71,10 @@ WORDS = {
 
 @dataclass(frozen=True)
 class FindingCheck:
-    """group: a kept self-calibration group; significant; correlation: the largest of its parameters'
-    with another group's, correlated_with: that group; undone_by: the alternative (ALTERNATIVES)
-    without which it does not stay significant with its sign, None when it is stable."""
+    """group: a kept self-calibration group; significant; correlation: the largest of its finding's
+    (module doc) with another needed group's parameters, correlated_with: that group; undone_by:
+    the alternative (ALTERNATIVES) without which it does not stay significant with its sign, None
+    when it is stable."""
 
     group: str
     significant: bool
@@ -137,7 +141,6 @@ def check_findings(problem: CalibrationProblem, learned: LearnedNoise) -> dict[s
         g: [names.index(n) for n in group_members(problem, g) if n in names] for g in learned.groups_kept
     }
     index = {g: rows for g, rows in index.items() if rows}
-    correlation = C / np.outer(sigma, sigma)
     needed = {g for g, rows in index.items() if _needed(theta[rows], C[np.ix_(rows, rows)])}
     checks = {}
     for group, rows in index.items():
@@ -146,9 +149,13 @@ def check_findings(problem: CalibrationProblem, learned: LearnedNoise) -> dict[s
         others = [i for g, r in index.items() if g != group and g in needed for i in r]
         rho, partner = 0.0, None
         if others:
-            block = np.abs(correlation[np.ix_(rows, others)])
-            rho = float(block.max())
-            partner = next(g for g, r in index.items() if others[int(np.argmax(block.max(axis=0)))] in r)
+            # The finding as a whole: the combination of the group's parameters its estimate stands out
+            # along (a = C_GG^-1 theta_G), against each parameter of the other needed groups.
+            direction = np.linalg.solve(C[np.ix_(rows, rows)], theta[rows])
+            spread = np.sqrt(direction @ C[np.ix_(rows, rows)] @ direction)
+            along = np.abs(direction @ C[np.ix_(rows, others)]) / (spread * sigma[others])
+            rho = float(along.max())
+            partner = next(g for g, r in index.items() if others[int(np.argmax(along))] in r)
         undone_by = None
         for alternative in ALTERNATIVES:
             dropped = index.get(alternative, [])
