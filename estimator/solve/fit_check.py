@@ -22,12 +22,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from hec.estimator.solve.finding_check import SIGNIFICANT, check_findings
 from hec.estimator.solve.measurement_model import predict_frame
 from hec.estimator.solve.noise_learning import LearnedNoise
 from hec.estimator.solve.problem import CalibrationProblem
 from hec.estimator.solve.self_calibration import (
     KINEMATIC_NUISANCE,
-    NOTEWORTHY,
+    MARKER_SHIFTS,
     NOTEWORTHY_MARKER_SHIFT_M,
     PRIOR_SIGMA,
     adjusted_problem,
@@ -46,13 +47,12 @@ SCALE_CORRELATION = 0.9
 # ... and the depth scale is "left to the priors" when its sigma exceeds this fraction of its
 # prior's: 0.7 on an orbit of the default angles, 0.03-0.1 on the default two-distance views.
 SCALE_UNRESOLVED = 0.25
-# A self-calibrated correction is reported when it is more than SIGNIFICANT sigmas from the declared
-# model and larger than its NOTEWORTHY size (below that it changes the mount by well under 0.1 mm).
-SIGNIFICANT = 3.0
 # The arm's corrected kinematics are reported when they move the flange poses by this much (RMS).
 NOTEWORTHY_FLANGE_MOVE_M = 0.0002
 NOTEWORTHY_FLANGE_TURN_RAD = float(np.radians(0.01))
 # Between the self-calibration warning's cause and its findings (each a cause and a fix, "; " apart).
+# The groups _scale_ambiguity speaks of (the self-calibration's "cannot tell apart" does not repeat it).
+SCALE_PAIR = ("board_scale", "depth_bias")
 SELF_CALIBRATED = " (self-calibration; the mount's covariance includes their uncertainty): "
 
 
@@ -237,38 +237,44 @@ def _noise_left(after: dict[str, float]) -> list[str]:
 
 
 def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patterns: dict) -> list[str]:
-    """What the self-calibration found: each correction more than SIGNIFICANT sigmas and
-    NOTEWORTHY in size from the declared model, with its likely cause and remedy (the arm's: the
-    flange poses its corrected kinematics move, when that is NOTEWORTHY)."""
+    """What the self-calibration found: each group whose finding holds (significant, stable under
+    the model's alternatives, weakly correlated: hec.estimator.solve.finding_check) with its likely
+    cause and remedy (the arm's: the flange poses its corrected kinematics move, when that is
+    NOTEWORTHY), then a "cannot tell apart" sentence for each significant one that does not hold."""
     t = dict(zip(learned.theta_names, learned.theta, strict=True))
     sigma = dict(zip(learned.theta_names, learned.theta_sigma, strict=True))
     patterns.update({f"self_calibration_{name}": float(v) for name, v in t.items()})
+    checks = check_findings(problem, learned)
+    patterns.update(
+        {f"finding_holds_{group}": float(c.holds) for group, c in checks.items() if c.significant}
+    )
 
-    def found(*names: str) -> bool:
-        return any(n in t and abs(t[n]) > max(SIGNIFICANT * sigma[n], NOTEWORTHY[n]) for n in names)
+    def found(group: str) -> bool:
+        """Whether the group's finding is given as advice (hec.estimator.solve.finding_check)."""
+        return group in checks and checks[group].holds
 
     findings = []
-    if found("board_scale_x", "board_scale_y"):
+    if found("board_scale"):
         findings.append(
             f"the board is printed {100 * np.expm1(t['board_scale_x']):+.2f} % (x) and "
             f"{100 * np.expm1(t['board_scale_y']):+.2f} % (y) off its definition (+-"
             f"{100 * sigma['board_scale_x']:.2f} %): measure the print (its 100 mm bar) and correct the "
             "board file"
         )
-    if found("board_bend_x_m", "board_bend_y_m"):
+    if found("board_bend"):
         findings.append(
             f"the board is bent out of its plane: its centre stands {1e3 * t['board_bend_x_m']:+.2f} mm "
             f"(along x) and {1e3 * t['board_bend_y_m']:+.2f} mm (along y) off its edges (+-"
             f"{1e3 * sigma['board_bend_x_m']:.2f} mm): mount it flat (glass or aluminium)"
         )
-    if found("depth_scale", "depth_offset_m"):
+    if found("depth_bias"):
         gain = np.exp(t["depth_scale"])
         findings.append(
             f"the depth reads true x {gain:.4f} {1e3 * gain * t['depth_offset_m']:+.2f} mm (+-"
             f"{100 * sigma['depth_scale']:.2f} %, +-{1e3 * sigma['depth_offset_m']:.2f} mm): run the "
             "camera's on-chip calibration or Tare"
         )
-    if found("depth_tilt_x", "depth_tilt_y"):
+    if found("depth_tilt"):
         findings.append(
             f"the depth tilts across the image by {1e3 * t['depth_tilt_x']:+.2f} mm (along x) and "
             f"{1e3 * t['depth_tilt_y']:+.2f} mm (along y) per metre (+-{1e3 * sigma['depth_tilt_x']:.2f}), "
@@ -276,21 +282,27 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
             f"{np.degrees(np.hypot(t['depth_tilt_x'], t['depth_tilt_y'])):.3f} deg would: recalibrate "
             "the camera's depth-to-colour extrinsics"
         )
-    if found("fx_px", "fy_px", "cx_px", "cy_px"):
+    if found("intrinsics"):
         findings.append(
             f"the intrinsics are off by fx {t['fx_px']:+.2f}, fy {t['fy_px']:+.2f}, cx {t['cx_px']:+.2f}, "
             f"cy {t['cy_px']:+.2f} px: calibrate the camera's intrinsics"
         )
-    if found("k1", "k2"):
+    if found("distortion"):
         findings.append(
             f"the lens distortion differs from the dataset's by k1 {t['k1']:+.4f}, k2 {t['k2']:+.4f}: "
             "calibrate the camera's intrinsics with distortion"
         )
-    if KINEMATIC_NUISANCE[0] in t:
+    if KINEMATIC_NUISANCE[0] in t and found("kinematics"):
         findings += _kinematic_finding(problem, learned, patterns)
-    findings += _marker_shift_finding(problem, t, sigma)
+    if found(MARKER_SHIFTS):
+        findings += _marker_shift_finding(problem, t, sigma)
+    undecided, pairs = [], {frozenset(SCALE_PAIR)} if _scale_ambiguity(learned, {}) else set()
+    for check in checks.values():
+        if check.significant and not check.holds and frozenset({check.group, check.partner}) not in pairs:
+            pairs.add(frozenset({check.group, check.partner}))
+            undecided.append(check.cannot_tell())
     if not findings:
-        return []
+        return undecided
     misfit = ", ".join(
         f"{word} {np.sqrt(learned.ratios[name]):.1f}x"
         for name, word in (("pixels", "corners"), ("depth", "depths"))
@@ -301,7 +313,7 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
         "arm were calibrated with the mount where the data showed them off"
         + SELF_CALIBRATED
         + "; ".join(findings)
-    ]
+    ] + undecided
 
 
 def _marker_shift_finding(problem: CalibrationProblem, t: dict, sigma: dict) -> list[str]:

@@ -7,8 +7,9 @@ depth. Its assumptions fail when any of these holds:
 - the declared model needed self-calibration of the camera, the depth or the arm (the noise
   learning pass found them off; seed-ekf solved with them as declared; the board's print does not
   matter to it, its map is free marker centres);
-- the depth's scale, estimated beside the mount (ekf with a depth scale, on the same problem), is
-  more than SIGNIFICANT sigmas from 1: a 0.1 % scale error moves seed-ekf's mount by about 20 of its
+- the depth's scale, estimated beside the mount (ekf with a depth scale, on the same problem with
+  the board as the self-calibration found it: a print scale would otherwise read as a depth scale),
+  is more than SIGNIFICANT sigmas from 1: a 0.1 % scale error moves seed-ekf's mount by about 20 of its
   own sigmas squared (NEES) and is below what the learning pass calls a misfit;
 - its mount lies farther from the learning pass's optimum than their joint uncertainty allows
   (Mahalanobis distance with both covariances, chi-square with 6 degrees of freedom, p <
@@ -29,7 +30,7 @@ from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.filters import run_filter
 from hec.estimator.solve.noise_learning import LearnedNoise
 from hec.estimator.solve.problem import CalibrationProblem
-from hec.estimator.solve.self_calibration import MARKER_SHIFTS
+from hec.estimator.solve.self_calibration import MARKER_SHIFTS, adjusted_problem, group_members
 
 # Self-calibrated parts seed-ekf does not depend on (its landmarks are free marker centres).
 BOARD_GROUPS = ("board_scale", "board_bend", MARKER_SHIFTS)
@@ -107,6 +108,13 @@ def check_assumptions(
     parts = tuple(group.replace("_", " ") for group in learned.groups_kept if group not in BOARD_GROUPS)
     scale = scale_sigma = None
     if any(m.depth_m is not None for f in problem.frames for m in f.markers):
+        board = [
+            i
+            for i, name in enumerate(learned.theta_names)
+            if any(name in group_members(problem, group) for group in BOARD_GROUPS)
+        ]
+        if board:
+            problem = adjusted_problem(problem, learned.theta[board], [learned.theta_names[i] for i in board])
         scaled = run_filter(problem, replace(options, estimate_depth_scale=True, prior=None), iterated=False)
         scale, scale_sigma = scaled.depth_scale, scaled.depth_scale_sigma
     return AssumptionCheck(distance, shift_mm, shift_deg, parts, scale, scale_sigma)
