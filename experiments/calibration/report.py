@@ -13,7 +13,13 @@ import numpy as np
 from hec.calibration.loo import format_loo, loo_to_dict
 from hec.estimator.common.files import check_output_file, write_atomic
 from hec.estimator.common.noise import RobotPoseNoise
-from hec.estimator.common.setups import BOARD_POSE_NAMES, EYE_TO_HAND, HAND_EYE_MEANINGS, HAND_EYE_NAMES
+from hec.estimator.common.setups import (
+    BOARD_POSE_NAMES,
+    EYE_IN_HAND,
+    EYE_TO_HAND,
+    HAND_EYE_MEANINGS,
+    HAND_EYE_NAMES,
+)
 from hec.estimator.geometry.lie import pose_minus, so3_log
 from hec.estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
 from hec.estimator.solve.calibration import Calibration
@@ -119,16 +125,23 @@ def format_vector(values: Iterable[float], fmt: str) -> str:
     return " ".join(format(float(v), fmt) for v in values)
 
 
-def _format_pose(T: np.ndarray) -> list[str]:
+def _parent_axes(setup: str) -> str:
+    """The frame the calibrated transform's translation (and its rpy) is along: flange or base."""
+    return "base" if setup == EYE_TO_HAND else "flange"
+
+
+def _format_pose(T: np.ndarray, setup: str = EYE_IN_HAND) -> list[str]:
     n = pose_numbers(T)
+    meaning = TRANSFORM_MEANING if setup == EYE_IN_HAND else f"T_base_cam: {HAND_EYE_MEANINGS[setup]}"
     return [
-        TRANSFORM_MEANING,
+        meaning,
         format_matrix(T),
         f"  translation [mm]: {format_vector(n['translation_mm'], '+.3f')}",
         f"  quaternion (w x y z): {format_vector(n['quaternion_wxyz'], '+.6f')}",
         f"  rotation vector [rad]: {format_vector(n['rotation_vector_rad'], '+.6f')}"
         f" (angle {n['rotation_angle_deg']:.4f} deg)",
-        f"  roll-pitch-yaw [deg] ({RPY_CONVENTION}): {format_vector(n['rpy_deg'], '+.4f')}",
+        f"  roll-pitch-yaw [deg] ({RPY_CONVENTION.replace('flange', _parent_axes(setup))}): "
+        f"{format_vector(n['rpy_deg'], '+.4f')}",
     ]
 
 
@@ -137,7 +150,7 @@ def _format_uncertainty(cal: Calibration) -> list[str]:
         lines = [f"uncertainty (1 sigma): {NO_UNCERTAINTY}"]
     else:
         lines = [
-            f"uncertainty (1 sigma): translation [mm] along flange x y z: "
+            f"uncertainty (1 sigma): translation [mm] along {_parent_axes(cal.setup)} x y z: "
             f"{format_vector(cal.sigma_translation_mm, '.4f')}; rotation [deg] about camera x y z: "
             f"{format_vector(cal.sigma_rotation_deg, '.5f')}"
         ]
@@ -227,7 +240,7 @@ def _format_run(cal: Calibration) -> list[str]:
 
 def format_calibration(cal: Calibration, T_true: np.ndarray | None = None) -> str:
     """The full text report of one Calibration; with T_true (4, 4) its errors against it."""
-    lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam), *_format_uncertainty(cal)]
+    lines = [f"method: {cal.method}", *_format_pose(cal.T_flange_cam, cal.setup), *_format_uncertainty(cal)]
     lines += _format_pick(cal, T_true)
     lines += [*_format_residuals(cal), *_format_noise(cal), *format_loo(cal), *_format_run(cal)]
     lines += [f"warning: {w}" for w in cal.warnings] or ["warnings: none"]
@@ -296,6 +309,7 @@ def calibration_to_dict(cal: Calibration, T_true: np.ndarray | None = None) -> d
         data["transform"] = f"{HAND_EYE_NAMES[cal.setup]}: {HAND_EYE_MEANINGS[cal.setup]}"
         data[BOARD_POSE_NAMES[cal.setup]] = data.pop("T_base_board")
         data["covariance_convention"] = COVARIANCE_CONVENTION.replace("the flange axes", "the base axes")
+        data["rpy_convention"] = RPY_CONVENTION.replace("flange", "base")
     return data
 
 

@@ -157,19 +157,21 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
     from hec.estimator.io.convention_check import check_pose_convention, px_text
 
     record = dataset.metadata.get("provenance") or {}
-    other = _other_setup_fits(problem)
-    if other is not None:
-        why = (
-            f'they fit the {other} set-up ({SETUP_WORDS[other]}): record "setup": "{other}" in '
-            f"{dataset.root / 'dataset.json'} (hec import --setup {other})"
-        )
-    elif "pose_values" in record:
+    if "pose_values" in record:
         from hec.estimator.io.pose_file import PoseConvention
 
         stated = PoseConvention(**record["pose_convention"])
         why = check_pose_convention(problem, np.array(record["pose_values"]), stated).message
     else:
         why = "check the pairing of images and poses, the pose convention, the board file and the intrinsics"
+    other = _other_setup_fits(problem)
+    if other is not None:  # inverted poses and the other set-up are the same model: name both
+        inverted = why if "pose_values" in record else "T_flange_base read as T_base_flange"
+        why = (
+            f"they fit with every pose inverted: either they are inverted ({inverted}), or the cell is "
+            f'{other} ({SETUP_WORDS[other]}): then record "setup": "{other}" in '
+            f"{dataset.root / 'dataset.json'} (hec import --setup {other})"
+        )
     best = min(solved, key=lambda c: c.residual_rms_px, default=None)
     best_text = f"none of {', '.join(CHECK_METHODS)} finds a mount"
     if best is not None:
