@@ -1,5 +1,5 @@
 """The RealSense camera source on librealsense's own code path, fed by a software device that
-streams the simulated cell (tests/realsense_software.py)."""
+streams the simulated cell (hec.rehearsal.software_d435)."""
 
 from __future__ import annotations
 
@@ -18,12 +18,7 @@ from hec.estimator.solve.problem import build_problem, dataset_robot_noise
 from hec.estimator.targets.qr import DetectorSettings
 from hec.hardware.camera_settings import CameraError, RealSenseSettings
 from hec.hardware.realsense import RealSenseCamera
-from hec.sim.cell import SimCell
-from hec.sim.scenario import DepthNoise, load_scenario
-from hec.sim.simulate import scenario_waypoints, simulate
-from hec.support.detection import detect_and_cache
-from tests.conftest import TEST_SEED
-from tests.realsense_software import (
+from hec.rehearsal.software_d435 import (
     COLOUR_INTRINSICS,
     DEPTH_INTRINSICS,
     SERIAL,
@@ -31,6 +26,11 @@ from tests.realsense_software import (
     d435_depth_sensor,
     d435_scenario,
 )
+from hec.sim.cell import SimCell
+from hec.sim.scenario import DepthNoise, load_scenario
+from hec.sim.simulate import scenario_waypoints, simulate
+from hec.support.detection import detect_and_cache
+from tests.conftest import TEST_SEED
 
 FAST = {"colour_size": (640, 480), "warmup_frames": 2, "timeout_s": 2.0}
 

@@ -22,13 +22,13 @@ from hec.estimator.common.models import models_dir
 from hec.estimator.geometry.transforms import pose_error, xyz_quat_from_transform
 from hec.estimator.geometry.waypoints import write_waypoint_file
 from hec.estimator.io.dataset import load_dataset
+from hec.rehearsal.rtde_loopback import LoopbackController
+from hec.rehearsal.software_d435 import SERIAL, SoftwareD435, d435_depth_sensor, d435_scenario
 from hec.session.plot import PLOT_FILE
 from hec.sim.cell import SimCell
 from hec.sim.scenario import Scenario, load_scenario
 from hec.sim.simulate import scenario_waypoints, simulate
 from tests.conftest import TEST_SEED
-from tests.realsense_software import SERIAL, SoftwareD435, d435_depth_sensor, d435_scenario
-from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 
 HOST = "127.0.0.4"  # apart from the other loopback test files' addresses
