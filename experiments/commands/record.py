@@ -27,7 +27,7 @@ import numpy as np
 from hec.commands import arguments
 from hec.commands.verbs import HELP
 from hec.estimator.common.jsonfile import read_json_object
-from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
+from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest, ur_ik_branches
 from hec.estimator.geometry.waypoints import (
     PlannedMove,
     Waypoint,
@@ -180,13 +180,22 @@ def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None
     return lambda T_base_flange, q_seed: solve_ik_nearest(kinematics, T_base_flange, q_seed)
 
 
+def _branches(model: str) -> Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    kinematics = ROBOTS[model]
+    return lambda T_base_flange, q_near, lower, upper: ur_ik_branches(
+        kinematics, T_base_flange, q_near, lower, upper
+    )
+
+
 # ---------------------------------------------------------------- the plan
 
 
 def format_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> str:
-    """One line per waypoint: joint target (degrees) and the flange position it gives
-    (nominal kinematics, metres), or why it is skipped."""
-    lines = [f"{'#':>3}  {'label':<22} {'joints q1..q6 [deg]':<50} flange [m]"]
+    """One line per waypoint: joint target (degrees), the flange position it gives (nominal
+    kinematics, metres) and the move's largest single-joint swing, or why it is skipped; then the
+    median and largest swing when the planner measured them."""
+    lines = [f"{'#':>3}  {'label':<22} {'joints q1..q6 [deg]':<50} {'flange [m]':<22} largest swing"]
+    swings = []
     for move in moves:
         w = move.waypoint
         if move.joints is None:
@@ -194,7 +203,17 @@ def format_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.
             continue
         q = " ".join(f"{v:+7.1f}" for v in np.degrees(move.joints))
         p = " ".join(f"{v:+.3f}" for v in forward_fk(move.joints)[:3, 3])
-        lines.append(f"{w.index:>3}  {w.label:<22} {q:<50} {p}")
+        swing = ""
+        if move.swing is not None:
+            joint, angle = move.swing
+            swing = f"q{joint + 1} {np.degrees(angle):5.1f} deg"
+            swings.append(np.degrees(angle))
+        lines.append(f"{w.index:>3}  {w.label:<22} {q:<50} {p:<22} {swing}".rstrip())
+    if swings:
+        lines.append(
+            f"largest single-joint swing per move: median {np.median(swings):.1f} deg, "
+            f"most {max(swings):.1f} deg"
+        )
     return "\n".join(lines)
 
 
@@ -322,7 +341,8 @@ def _record_hardware(
     kinematics = ROBOTS[config.robot.model]
     inverse = _inverse(config.robot.model)
     with config.open_robot(config.robot_host(args.robot), read_only=args.dry_run) as robot:
-        moves = plan_moves(robot, inverse, waypoints)
+        cable_limit = float(np.radians(config.robot.wrist_cable_limit_deg))
+        moves = plan_moves(robot, inverse, waypoints, cable_limit, _branches(config.robot.model))
         _print_plan(moves, lambda q: forward(kinematics, q))
         print(
             f"joint speed {config.robot.joint_speed_deg_s:g} deg/s, acceleration "

@@ -45,6 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--views", type=int, metavar="N", help="only the first N waypoints of the default trajectory"
     )
     p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS))
+    p.add_argument("--dry-run", action="store_true", help="print the plan and stop (as hec run --dry-run)")
     p.add_argument(
         "--host",
         default=DEFAULT_HOST,
@@ -86,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
             waypoints = write_pose_waypoints(Path(folder) / "waypoints.csv", scenario, args.views)
         argv = ["run", "--robot", args.host, "--camera", SERIAL, "--cell", str(cell_file)]
         argv += ["--waypoints", str(waypoints), "--out", str(args.out), "--yes", "--method", args.method]
+        argv += ["--dry-run"] if args.dry_run else []
         parser = argparse.ArgumentParser(prog="hec")
         record.add_parsers(parser.add_subparsers(dest="command", required=True))
         with rehearsal_rig(scenario, seed, args.host, args.speedup) as rig:
