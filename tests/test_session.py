@@ -46,7 +46,7 @@ pose_sigma_deg = 0.0
 colour_size = [640, 480]
 warmup_frames = 2
 burst = 4
-timeout_s = 2.0
+timeout_s = 20.0  # a hang guard only: the stand-in renders slowly on a loaded machine
 """
 
 

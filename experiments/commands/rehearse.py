@@ -62,7 +62,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """`hec rehearse`: start the stand-ins, run `hec run` against them, print the error against
     the true mount; returns hec run's exit code."""
-    from hec.rehearsal.rig import REHEARSAL_CELL_TOML, rehearsal_rig, rehearsal_scenario, write_pose_waypoints
+    from hec.rehearsal.rig import (
+        REHEARSAL_BURST,
+        REHEARSAL_CELL_TOML,
+        rehearsal_rig,
+        rehearsal_scenario,
+        write_pose_waypoints,
+    )
     from hec.rehearsal.software_d435 import SERIAL
 
     if args.views is not None and args.views < 3:
@@ -81,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     )
     with tempfile.TemporaryDirectory(prefix="hec-rehearse-") as folder:
         cell_file = Path(folder) / "cell.toml"
-        write_atomic(cell_file, REHEARSAL_CELL_TOML.format(timeout_s=10.0))
+        write_atomic(cell_file, REHEARSAL_CELL_TOML.format(timeout_s=20.0, burst=REHEARSAL_BURST))
         waypoints = args.waypoints
         if waypoints is None:
             waypoints = write_pose_waypoints(Path(folder) / "waypoints.csv", scenario, args.views)

@@ -19,6 +19,7 @@ from hec.sim.cell import SimCell
 from hec.sim.scenario import Scenario, load_scenario
 from hec.sim.simulate import scenario_waypoints
 
+REHEARSAL_BURST = 4  # frames averaged per capture
 # Where the arm starts, radians (shoulder and elbow bent, wrist down, as a UR5 is often parked).
 HOME_JOINTS = np.array([-1.57, -1.57, 1.57, -1.57, -1.57, 0.0])
 # The session's cell file: faster moves than a first session on a real arm should use, the D435
@@ -33,7 +34,7 @@ pose_sigma_deg = 0.0
 [camera]
 colour_size = [640, 480]
 warmup_frames = 2
-burst = 4
+burst = {burst}
 timeout_s = {timeout_s!r}
 """
 
@@ -76,7 +77,7 @@ def rehearsal_rig(scenario: Scenario, seed: int, host: str, speedup: float = 4.0
     lock = threading.Lock()
     controller = LoopbackController(cell, lock, host=host, speedup=speedup).start()
     try:
-        with SoftwareD435(cell, lock, np.random.default_rng(seed + 1)) as device:
+        with SoftwareD435(cell, lock, np.random.default_rng(seed + 1), burst=REHEARSAL_BURST) as device:
             yield Rig(cell, lock, controller, device)
     finally:
         controller.close()
