@@ -50,3 +50,19 @@ def test_rehearse_refuses_an_existing_out_folder_before_starting_anything(tmp_pa
     proc = _hec("rehearse", "--out", str(tmp_path / "taken"), "--host", HOST)
     assert proc.returncode == 2 and "already exists" in proc.stderr
     assert list((tmp_path / "taken").iterdir()) == []
+
+
+def test_preview_draws_the_planned_moves_and_never_replaces_a_file(tmp_path: Path) -> None:
+    import cv2
+
+    picture = tmp_path / "plan.png"
+    argv = ["rehearse", "--dry-run", "--views", "3", "--host", HOST, "--preview", str(picture)]
+    proc = _hec(*argv, "--out", str(tmp_path / "a"))
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert f"preview: {picture}" in proc.stdout and "dry run: nothing moved" in proc.stdout
+    sheet = cv2.imread(str(picture))
+    assert sheet is not None and sheet.shape[1] == 4 + 4 * (320 + 4)  # 3 moves, 2 pictures each: 4 columns
+    assert sheet.shape[0] > 2 * 240 and sheet.std() > 10  # two rows of rendered cells, not a blank
+    before = picture.read_bytes()
+    proc = _hec(*argv, "--out", str(tmp_path / "b"))
+    assert proc.returncode == 2 and "already exists" in proc.stderr and picture.read_bytes() == before

@@ -41,6 +41,7 @@ from hec.estimator.observe.frames import DatasetError, GroundTruth
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import METHODS
 from hec.estimator.solve.verify import spread_views
+from hec.session import preview
 from hec.session.adaptive import DEFAULT_MAX_VIEWS, POOL_CANDIDATES, AdaptiveViews, TargetError, sigma_target
 from hec.session.cell_config import CellConfig, CellConfigError, load_cell_config
 from hec.session.session import LiveEstimate, SessionCell, run_session
@@ -99,6 +100,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         )
         p.add_argument("--out", required=True, type=Path, help="dataset folder to create (or --resume)")
         p.add_argument("--dry-run", action="store_true", help="print the plan and stop; nothing moves")
+        preview.add_argument(p)
         p.add_argument("--yes", action="store_true", help="do not ask before the first motion")
         p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
         p.add_argument("--no-live", action="store_true", help="no detection and running estimate per frame")
@@ -133,6 +135,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 def _check_out(args: argparse.Namespace) -> None:
     if args.resume and not (args.out / "dataset.json").is_file():
         raise RecordError(f"{args.out}: no session to resume (no dataset.json)")
+    preview.check_preview_path(args)
     if not args.resume and not args.dry_run and args.out.exists():
         raise RecordError(f"{args.out} already exists; add --resume to continue it, or choose another --out")
 
@@ -344,6 +347,8 @@ def _record_hardware(
         cable_limit = float(np.radians(config.robot.wrist_cable_limit_deg))
         moves = plan_moves(robot, inverse, waypoints, cable_limit, _branches(config.robot.model))
         _print_plan(moves, lambda q: forward(kinematics, q))
+        if args.preview is not None:
+            print(f"preview: {preview.write_path_preview(args.preview, moves, robot.joints())}")
         print(
             f"joint speed {config.robot.joint_speed_deg_s:g} deg/s, acceleration "
             f"{config.robot.joint_acceleration_deg_s2:g} deg/s^2, dwell {config.robot.dwell_s:g} s: "

@@ -47,6 +47,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS))
     p.add_argument("--dry-run", action="store_true", help="print the plan and stop (as hec run --dry-run)")
     p.add_argument(
+        "--preview",
+        type=Path,
+        metavar="FILE.png",
+        help="draw the planned moves into this new PNG (as hec run)",
+    )
+    p.add_argument(
         "--host",
         default=DEFAULT_HOST,
         help="loopback address the stand-in controller serves ur_rtde's ports on (default: %(default)s)",
@@ -94,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         argv = ["run", "--robot", args.host, "--camera", SERIAL, "--cell", str(cell_file)]
         argv += ["--waypoints", str(waypoints), "--out", str(args.out), "--yes", "--method", args.method]
         argv += ["--dry-run"] if args.dry_run else []
+        argv += ["--preview", str(args.preview)] if args.preview is not None else []
         parser = argparse.ArgumentParser(prog="hec")
         record.add_parsers(parser.add_subparsers(dest="command", required=True))
         with rehearsal_rig(scenario, seed, args.host, args.speedup) as rig:
