@@ -90,7 +90,7 @@ class Controller(ScriptEmulation):
         self.events: collections.deque[str] = collections.deque(maxlen=1000)
         self.received_commands: collections.deque[str] = collections.deque(maxlen=1000)
         self.running = True
-        self.t0_wall = time.monotonic()
+        self.ticks = 0  # control cycles run: the controller's clock (controller_time)
         # RTDE registers and input ownership.
         self.inputs: dict[str, Any] = {}
         self.outputs: dict[str, Any] = {}
@@ -140,15 +140,17 @@ class Controller(ScriptEmulation):
                     break
             now = time.monotonic()
             if now >= next_tick and self.running:
-                self.tick(now)
+                self.tick()
                 next_tick = max(next_tick + self.tick_s, now)
         for session in list(self.sessions):
             self.close_session(session)
         self.close_listeners()
         self.selector.close()
 
-    def tick(self, now: float) -> None:
-        t = self.controller_time(now)
+    def tick(self) -> None:
+        """One control cycle: the clock advances by one cycle, whenever the cycle runs."""
+        self.ticks += 1
+        t = self.controller_time()
         self.advance_move(t)
         self.step_program()
         cache: dict[str, Any] = {}
@@ -156,8 +158,11 @@ class Controller(ScriptEmulation):
             if isinstance(session, RtdeSession):
                 session.stream(self.tick_s, lambda name: self.output_value(name, t, cache))
 
-    def controller_time(self, now: float | None = None) -> float:
-        return self.config.speedup * ((time.monotonic() if now is None else now) - self.t0_wall)
+    def controller_time(self) -> float:
+        """Seconds on the controller's simulated clock: speedup x the control cycles run. A loaded
+        machine runs the cycles later, not fewer, so a move takes the same cycles and passes the
+        same setpoints whatever the load."""
+        return self.config.speedup * self.ticks * self.tick_s
 
     def event(self, text: str) -> None:
         self.events.append(f"{self.controller_time():9.3f} {text}")

@@ -55,8 +55,10 @@ class LoopbackController:
     cell: the simulated arm; the controller moves it with ``cell.set_joints``.
     lock: guards ``cell``; held around every read and write the controller makes.
     host: loopback address to serve on (ports 30004, 29999 and 30003 are fixed by ur_rtde).
-    speedup: controller time runs this many times faster than wall time, so moves finish
-        sooner; speeds, accelerations and timestamps are in controller time.
+    speedup: each control cycle (1/125 s or 1/500 s of wall time on a quiet machine) advances
+        controller time by speedup cycles, so moves finish sooner; speeds, accelerations and
+        timestamps are in controller time, a simulated clock counted in cycles (a loaded
+        machine slows it down rather than making it skip).
     controller_version: (major, minor, bugfix, build) reported over RTDE; major 3 is a CB3
         (125 Hz), major 5 an e-Series (500 Hz).
     """
