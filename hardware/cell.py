@@ -9,6 +9,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from hec.estimator.geometry.move_plan import Branches, plan_joint_moves
 from hec.estimator.geometry.waypoints import PlannedMove, Waypoint
 from hec.estimator.observe.frames import Capture, Frame
 from hec.estimator.targets.target import Target
@@ -25,27 +26,27 @@ def plan_moves(
     robot: URRobot,
     inverse: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
     waypoints: list[Waypoint],
+    cable_limit_rad: float = np.pi,
+    branches: Branches | None = None,
 ) -> list[PlannedMove]:
-    """Joint targets from the arm's current joints on (pose waypoints through inverse,
-    seeded with the previous target), each checked against the joint limits and the
-    workspace box; a waypoint that fails is skipped and the next starts from the one before."""
-    q = robot.joints()
-    moves = []
-    for waypoint in waypoints:
-        target = waypoint.joints if waypoint.joints is not None else inverse(waypoint.T_base_flange, q)
-        if target is None:
-            moves.append(
-                PlannedMove(waypoint, None, "no inverse kinematics solution within the joint limits")
-            )
-            continue
-        target = np.asarray(target, dtype=float)
-        problem = robot.check_joint_target(target)
-        if problem is not None:
-            moves.append(PlannedMove(waypoint, None, problem))
-            continue
-        moves.append(PlannedMove(waypoint, target))
-        q = target
-    return moves
+    """plan_joint_moves from the arm's current joints, within its joint limits, each target
+    checked as the arm checks it before moving and every path sample's flange against its
+    workspace box."""
+
+    def flange_problem(q: np.ndarray) -> str | None:
+        return None if robot.forward is None else robot.limits.problem_with_flange(robot.forward(q))
+
+    return plan_joint_moves(
+        waypoints,
+        robot.joints(),
+        np.array(robot.limits.joint_lower_rad),
+        np.array(robot.limits.joint_upper_rad),
+        cable_limit_rad,
+        robot.check_joint_target,
+        flange_problem,
+        inverse,
+        branches,
+    )
 
 
 class HardwareCell:

@@ -310,6 +310,15 @@ class SimCell:
         geom = self.model.geom(geom_id)
         return geom.name or self.model.body(geom.bodyid[0]).name
 
+    def collision_at(self, q: np.ndarray) -> str | None:
+        """What the arm or the camera would touch at joints q (6,), radians (MuJoCo's contacts with
+        the cell: wall, floor, table, board), or None; the arm is put back where it was."""
+        before = self.joints.copy()
+        self.set_joints(q)
+        problem = self._collision()
+        self.set_joints(before)
+        return problem
+
     def set_joints(self, q: np.ndarray) -> None:
         """Put the arm at joint angles q (6,), radians, without any check (the loopback
         RTDE controller in tests drives the arm this way)."""

@@ -33,8 +33,11 @@ def overview_image(cell: SimCell) -> np.ndarray:
     return rgb
 
 
-def contact_sheet(images: list[np.ndarray], columns: int = 5, thumb_width: int = 256) -> np.ndarray:
-    """Tile RGB images (same size) into one RGB image, each labelled with its frame number."""
+def contact_sheet(
+    images: list[np.ndarray], columns: int = 5, thumb_width: int = 256, labels: list[str] | None = None
+) -> np.ndarray:
+    """Tile RGB images (same size) into one RGB image, each labelled with labels[i] (default: its
+    frame number)."""
     h, w = images[0].shape[:2]
     thumb_h = round(h * thumb_width / w)
     rows = -(-len(images) // columns)
@@ -42,7 +45,14 @@ def contact_sheet(images: list[np.ndarray], columns: int = 5, thumb_width: int =
     for i, image in enumerate(images):
         thumb = cv2.resize(image, (thumb_width, thumb_h), interpolation=cv2.INTER_AREA)
         cv2.putText(
-            thumb, f"frame {i}", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 40, 40), 2, cv2.LINE_AA
+            thumb,
+            labels[i] if labels else f"frame {i}",
+            (6, 20),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.55,
+            (255, 40, 40),
+            2,
+            cv2.LINE_AA,
         )
         r, c = divmod(i, columns)
         y, x = 4 + r * (thumb_h + 4), 4 + c * (thumb_width + 4)

@@ -26,7 +26,14 @@ FOLDERS = {"experiments": "hec", "sim": "hec.sim", "estimator": "hec.estimator",
 MAX_LINES = 500
 _ESTIMATOR = ("hec.estimator", "hec.estimator.common", "hec.estimator.geometry")
 _ESTIMATOR_ALL = (*_ESTIMATOR, *(f"hec.estimator.{s}" for s in ("targets", "observe", "solve", "io")))
-_BELOW_COMMANDS = ("hec.support", "hec.calibration", "hec.session", "hec.sweep", "hec.regress")
+_BELOW_COMMANDS = (
+    "hec.support",
+    "hec.calibration",
+    "hec.session",
+    "hec.sweep",
+    "hec.regress",
+    "hec.rehearsal",
+)
 # What each unit (a subpackage, or a package's own top-level modules) may import besides itself.
 # The estimator's floors: common (file helpers, shared types) at the bottom, then geometry, then
 # targets and observe, then solve; file formats (io) above the maths. sim never imports the solver.
@@ -45,6 +52,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "hec.session": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", "hec.support", "hec.calibration"),
     "hec.sweep": (*_ESTIMATOR_ALL, "hec.sim", "hec.support", "hec.calibration"),
     "hec.regress": (*_ESTIMATOR_ALL, "hec.sim", "hec.support"),
+    # The stand-ins of the real cell (a loopback UR controller, a software RealSense) over the simulated one.
+    "hec.rehearsal": (*_ESTIMATOR_ALL, "hec.sim"),
     "hec.commands": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", *_BELOW_COMMANDS),
     "hec": (*_ESTIMATOR_ALL, "hec.sim", "hec.hardware", *_BELOW_COMMANDS, "hec.commands"),
     # The benchmarks (not installed) may use anything but the command line.
@@ -235,9 +244,9 @@ def test_real_cell_modules_import_neither_mujoco_nor_sim() -> None:
 @pytest.fixture
 def loopback_ur(tmp_path: Path) -> Iterator[Path]:
     """A loopback UR controller over a simulated cell (in this process), and a cell file for it."""
+    from hec.rehearsal.rtde_loopback import LoopbackController
     from hec.sim.cell import SimCell
     from hec.sim.scenario import load_scenario
-    from tests.rtde_loopback import LoopbackController
 
     hang_guard(120.0)
     cell = SimCell(load_scenario(None), np.random.default_rng(0))

@@ -22,7 +22,13 @@ from hec.estimator.geometry.transforms import (
     xyz_quat_from_transform,
 )
 from hec.estimator.io.calibration_file import CalibrationFileError, read_calibration
-from hec.estimator.io.export import Export, export_text, realsense_link_optical
+from hec.estimator.io.export import (
+    REALSENSE_ROS_PARENTS,
+    Export,
+    export_text,
+    realsense_link_optical,
+    realsense_ros_parent,
+)
 
 T_FLANGE_CAM = make_transform(so3_exp(np.array([0.3, -1.2, 2.0])), np.array([0.012, -0.034, 0.056]))
 COVARIANCE = np.diag([1e-8, 2e-8, 3e-8, 1e-6, 2e-6, 3e-6])
@@ -146,8 +152,62 @@ def test_export_command_link_values_and_out_file(tmp_path: Path, capsys) -> None
     T_link_optical = transform_from_xyz_quat(np.array([0.0, 0.015, 0.0]), np.array([w, x, y, z]))
     T, _, child = _urdf_origin(out.read_text())
     assert child == "camera_link" and np.abs(T @ T_link_optical - T_FLANGE_CAM).max() < 1e-9
-    assert main(["export", str(cal), "--to", "urdf"]) == 0
+    assert main(["export", str(cal), "--to", "urdf", "--assume-zero-offset"]) == 0
     assert "ZERO offset" in capsys.readouterr().err
+
+
+def _realsense_ros_tree(name: str = "camera") -> dict[str, str]:
+    """child -> parent of every frame realsense-ros publishes for camera name `name`."""
+    children = [name + suffix for suffix in REALSENSE_ROS_PARENTS]
+    return {child: realsense_ros_parent(child) for child in children}
+
+
+def test_the_default_export_gives_no_realsense_ros_frame_a_second_parent(tmp_path: Path, capsys) -> None:
+    """Every format's default child is camera_link, which realsense-ros publishes no parent for; the
+    TF tree with the export added still has one parent per frame and reaches the optical frame at
+    T_flange_cam."""
+    cal = _calibration_file(tmp_path)
+    T_link_optical = realsense_link_optical(
+        make_transform(so3_exp(np.array([0.001, 0.002, -0.003])), np.array([-0.0148, 0.0002, 0.0004]))
+    )
+    t, (w, x, y, z) = xyz_quat_from_transform(T_link_optical)
+    values = [repr(float(v)) for v in (*t, x, y, z, w)]
+    assert main(["export", str(cal), "--to", "ros2-args", "--link-optical-values", *values]) == 0
+    out = capsys.readouterr()
+    assert "second parent" not in out.err
+    T_parent_child, parent, child = _publisher_transform(out.out.splitlines()[-1].split()[4:])
+    tree = _realsense_ros_tree()
+    assert (parent, child) == ("tool0", "camera_link") and child not in tree and parent not in tree
+    assert realsense_ros_parent("camera_color_optical_frame") == "camera_color_frame"
+    assert tree["camera_color_frame"] == "camera_link"
+    assert np.abs(T_parent_child @ T_link_optical - T_FLANGE_CAM).max() < 1e-9
+    assert main(["export", str(cal), "--to", "urdf", "--link-optical-values", *values]) == 0
+    assert _urdf_origin(capsys.readouterr().out)[2] == "camera_link"
+    assert main(["export", str(cal), "--to", "easy_handeye2", "--link-optical-values", *values]) == 0
+    assert yaml.safe_load(capsys.readouterr().out)["parameters"]["tracking_base_frame"] == "camera_link"
+
+
+def test_camera_link_without_a_known_offset_is_refused_unless_asked(tmp_path: Path, capsys) -> None:
+    cal = _calibration_file(tmp_path)
+    out = tmp_path / "mount.launch.py"
+    assert main(["export", str(cal), "--to", "ros2-launch", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "transform to the optical frame is not known" in err and "--assume-zero-offset" in err
+    assert "tf2_echo camera_link camera_color_optical_frame" in err and not out.exists()
+    assert main(["export", str(cal), "--to", "ros2-launch", "--out", str(out), "--assume-zero-offset"]) == 0
+    assert "ZERO offset" in capsys.readouterr().err and out.is_file()
+
+
+def test_an_optical_child_says_when_it_clashes(tmp_path: Path, capsys) -> None:
+    cal = _calibration_file(tmp_path)
+    assert main(["export", str(cal), "--to", "ros2-args", "--child", "camera_color_optical_frame"]) == 0
+    out = capsys.readouterr()
+    assert "publishes camera_color_frame -> camera_color_optical_frame" in out.err
+    assert "publish_tf:=false" in out.err
+    T, _, child = _publisher_transform(out.out.splitlines()[-1].split()[4:])
+    assert child == "camera_color_optical_frame" and np.abs(T - T_FLANGE_CAM).max() < 1e-9
+    assert main(["export", str(cal), "--to", "ros2-args", "--child", "tracker_optical_frame"]) == 0
+    assert "second parent" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

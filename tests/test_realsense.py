@@ -1,5 +1,5 @@
 """The RealSense camera source on librealsense's own code path, fed by a software device that
-streams the simulated cell (tests/realsense_software.py)."""
+streams the simulated cell (hec.rehearsal.software_d435)."""
 
 from __future__ import annotations
 
@@ -18,12 +18,7 @@ from hec.estimator.solve.problem import build_problem, dataset_robot_noise
 from hec.estimator.targets.qr import DetectorSettings
 from hec.hardware.camera_settings import CameraError, RealSenseSettings
 from hec.hardware.realsense import RealSenseCamera
-from hec.sim.cell import SimCell
-from hec.sim.scenario import DepthNoise, load_scenario
-from hec.sim.simulate import scenario_waypoints, simulate
-from hec.support.detection import detect_and_cache
-from tests.conftest import TEST_SEED
-from tests.realsense_software import (
+from hec.rehearsal.software_d435 import (
     COLOUR_INTRINSICS,
     DEPTH_INTRINSICS,
     SERIAL,
@@ -31,8 +26,15 @@ from tests.realsense_software import (
     d435_depth_sensor,
     d435_scenario,
 )
+from hec.sim.cell import SimCell
+from hec.sim.scenario import DepthNoise, load_scenario
+from hec.sim.simulate import scenario_waypoints, simulate
+from hec.support.detection import detect_and_cache
+from tests.conftest import TEST_SEED
 
-FAST = {"colour_size": (640, 480), "warmup_frames": 2, "timeout_s": 2.0}
+# timeout_s: only a hang guard (the stand-in renders slowly on a loaded machine); the test of a camera
+# that stops sets its own.
+FAST = {"colour_size": (640, 480), "warmup_frames": 2, "timeout_s": 20.0}
 
 
 def _cell(seed: int, noise: bool = True) -> SimCell:
@@ -90,7 +92,7 @@ def test_aligned_depth_is_exact_without_noise() -> None:
     cell = _cell(0, noise=False)
     waypoints = scenario_waypoints(cell.scenario)
     lock = threading.Lock()
-    with SoftwareD435(cell, lock, np.random.default_rng(1)) as device:
+    with SoftwareD435(cell, lock, np.random.default_rng(1), burst=2) as device:
         with RealSenseCamera(RealSenseSettings(**FAST, burst=2), device.context) as camera:
             for waypoint in waypoints[:5]:
                 with lock:
@@ -123,7 +125,7 @@ def record_through_librealsense(simulated: Path, out: Path, seed: int, burst: in
     reference = load_dataset(simulated)
     cell = _cell(seed)
     lock = threading.Lock()
-    with SoftwareD435(cell, lock, np.random.default_rng(seed + 1)) as device:
+    with SoftwareD435(cell, lock, np.random.default_rng(seed + 1), burst=burst) as device:
         with RealSenseCamera(RealSenseSettings(**FAST, burst=burst), device.context) as camera:
             with DatasetWriter(out, camera.intrinsics, reference.board, 1e-4, source="realsense") as writer:
                 for i, joints in enumerate(reference.ground_truth.joints):
@@ -153,12 +155,12 @@ def ekf_error(dataset_dir: Path) -> tuple[float, float]:
 
 
 def test_calibration_through_librealsense_matches_the_simulator(tmp_path: Path) -> None:
-    """ekf on three seeds: RMS error through librealsense within 40 % of the simulator's own
-    frames. The software device's frame timing picks which noise draws a burst gets, so the
-    three-seed RMS through librealsense varies from run to run: +4 %, +1 %, +11 % in three
-    measured runs, then (rotation) +5 %, +16 % and +24 % in three more; at 20 % the test failed
-    about one run in four with nothing wrong. The depth biases this test exists for cost +190 % or
-    more (0.54 / 0.70 / 1.23 mm against 0.19 / 0.04 / 0.16 mm)."""
+    """ekf on three seeds: RMS error through librealsense within 20 % of the simulator's own
+    frames. The software device draws a frame's noise from its pose and its number at that pose
+    modulo the burst, so a burst's mean does not depend on when the capture starts, and the test
+    gives the same figures on every run, however loaded the machine (measured: simulator 0.116 mm,
+    0.0084 deg; through librealsense 0.108 mm, 0.0066 deg). The depth biases this test exists for
+    cost +190 % or more (0.54 / 0.70 / 1.23 mm against 0.19 / 0.04 / 0.16 mm)."""
     scenario = d435_scenario(load_scenario(None))
     direct, through_rs = [], []
     for seed in (TEST_SEED, TEST_SEED + 1, TEST_SEED + 2):
@@ -169,14 +171,14 @@ def test_calibration_through_librealsense_matches_the_simulator(tmp_path: Path) 
     rms_direct = np.sqrt(np.mean(np.square(direct), axis=0))
     rms_rs = np.sqrt(np.mean(np.square(through_rs), axis=0))
     print(f"ekf RMS error (mm, deg): simulator {rms_direct}, through librealsense {rms_rs}")
-    assert np.all(rms_rs <= 1.4 * rms_direct), (direct, through_rs)
+    assert np.all(rms_rs <= 1.2 * rms_direct), (direct, through_rs)
 
 
 def test_a_recording_plays_back_through_the_same_source(tmp_path: Path) -> None:
     cell = _cell(4)
     cell.move_to(scenario_waypoints(cell.scenario)[0])
     recording = tmp_path / "session.db3"
-    with SoftwareD435(cell, threading.Lock(), np.random.default_rng(5)) as device:
+    with SoftwareD435(cell, threading.Lock(), np.random.default_rng(5), burst=3) as device:
         settings = RealSenseSettings(**FAST, burst=3, record_to=recording)
         with RealSenseCamera(settings, device.context) as live:
             first = live.capture()
@@ -200,8 +202,9 @@ def test_depth_units_are_left_alone_when_asked() -> None:
 
 
 def test_a_camera_that_stops_delivering_is_reported() -> None:
-    with SoftwareD435(_cell(0), threading.Lock(), np.random.default_rng(1)) as device:
-        with RealSenseCamera(RealSenseSettings(**FAST, burst=2), device.context) as camera:
+    with SoftwareD435(_cell(0), threading.Lock(), np.random.default_rng(1), burst=2) as device:
+        settings = RealSenseSettings(**{**FAST, "timeout_s": 2.0}, burst=2)
+        with RealSenseCamera(settings, device.context) as camera:
             camera.capture()
             device.pause()
             with pytest.raises(CameraError, match="no frame from the camera for 2 s"):

@@ -1,4 +1,4 @@
-"""The real ur_rtde 1.6.5 clients against the loopback controller (tests/rtde_loopback.py).
+"""The real ur_rtde 1.6.5 clients against the loopback controller (hec.rehearsal.rtde_loopback).
 
 What ur_rtde does, as these tests record it:
 - A blocking moveJ returns False when a protective or emergency stop happens during the
@@ -30,14 +30,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hec.estimator.geometry.kinematics import forward
-from tests.rtde_loopback import (
+from hec.rehearsal.rtde_loopback import LoopbackController
+from hec.rehearsal.rtde_protocol import (
     RUNTIME_PAUSED,
     RUNTIME_PLAYING,
     RUNTIME_STOPPED,
     SAFETY_MODE_NORMAL,
     SAFETY_MODE_PROTECTIVE_STOP,
     SAFETY_MODE_ROBOT_EMERGENCY_STOP,
-    LoopbackController,
     PortBusyError,
     pose_matrix,
     pose_vector,

@@ -19,16 +19,17 @@ from hec.commands import record
 from hec.commands.calibrate import CalibrateSettings, calibrate_dataset
 from hec.commands.table import build_parser
 from hec.estimator.common.models import models_dir
-from hec.estimator.geometry.transforms import pose_error, xyz_quat_from_transform
+from hec.estimator.geometry.transforms import pose_error
 from hec.estimator.geometry.waypoints import write_waypoint_file
 from hec.estimator.io.dataset import load_dataset
+from hec.rehearsal.rig import rehearsal_scenario, write_pose_waypoints
+from hec.rehearsal.rtde_loopback import LoopbackController
+from hec.rehearsal.software_d435 import SERIAL, SoftwareD435, d435_depth_sensor
 from hec.session.plot import PLOT_FILE
 from hec.sim.cell import SimCell
 from hec.sim.scenario import Scenario, load_scenario
 from hec.sim.simulate import scenario_waypoints, simulate
 from tests.conftest import TEST_SEED
-from tests.realsense_software import SERIAL, SoftwareD435, d435_depth_sensor, d435_scenario
-from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 
 HOST = "127.0.0.4"  # apart from the other loopback test files' addresses
@@ -46,25 +47,8 @@ pose_sigma_deg = 0.0
 colour_size = [640, 480]
 warmup_frames = 2
 burst = 4
-timeout_s = 2.0
+timeout_s = 20.0  # a hang guard only: the stand-in renders slowly on a loaded machine
 """
-
-
-def _scenario() -> Scenario:
-    """The default cell with the D435 stand-in's colour intrinsics and exact robot poses (as
-    the loopback controller reports them)."""
-    scenario = d435_scenario(load_scenario(None))
-    robot_pose = scenario.noise.robot_pose.model_copy(update={"enabled": False})
-    return scenario.model_copy(update={"noise": scenario.noise.model_copy(update={"robot_pose": robot_pose})})
-
-
-def _write_pose_waypoints(path: Path, scenario: Scenario, count: int | None = None) -> Path:
-    lines = ["x_m,y_m,z_m,qw,qx,qy,qz,label"]
-    for w in scenario_waypoints(scenario)[:count]:
-        t, q = xyz_quat_from_transform(w.T_base_flange)
-        lines.append(",".join(repr(float(v)) for v in (*t, *q)) + f",{w.label}")
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 @dataclass
@@ -84,7 +68,7 @@ class RealCell:
 
 def _real_cell(tmp_path: Path, seed: int) -> Iterator[RealCell]:
     hang_guard(HANG_LIMIT_S)
-    cell = SimCell(_scenario(), np.random.default_rng(seed), depth_sensor=d435_depth_sensor())
+    cell = SimCell(rehearsal_scenario(), np.random.default_rng(seed), depth_sensor=d435_depth_sensor())
     cell.set_joints(Q_HOME)
     lock = threading.Lock()
     cell_file = tmp_path / "cell.toml"
@@ -115,8 +99,8 @@ def test_record_on_the_real_cell_path_calibrates_like_the_simulator(
 ) -> None:
     """The loopback reports exact flange poses, so both datasets have no robot pose noise and
     differ only in the camera path (librealsense, a 4-frame burst) and the session's timing."""
-    scenario = _scenario()
-    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", scenario)
+    scenario = rehearsal_scenario()
+    waypoints = write_pose_waypoints(tmp_path / "waypoints.csv", scenario)
     out = tmp_path / "recorded"
     assert real_cell.record("--waypoints", str(waypoints), "--out", str(out), "--yes") == 0
     dataset = load_dataset(out)
@@ -142,7 +126,7 @@ def test_record_on_the_real_cell_path_calibrates_like_the_simulator(
 def test_a_dropped_connection_stops_the_session_and_resume_finishes_it(
     real_cell: RealCell, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario(), count=6)
+    waypoints = write_pose_waypoints(tmp_path / "waypoints.csv", rehearsal_scenario(), count=6)
     out = tmp_path / "recorded"
     options = ("--waypoints", str(waypoints), "--out", str(out), "--yes", "--no-live")
 
@@ -179,7 +163,7 @@ def test_a_dropped_connection_stops_the_session_and_resume_finishes_it(
 
 
 def test_a_protective_stop_stops_the_session_and_says_so(real_cell: RealCell, tmp_path: Path, capsys) -> None:
-    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario(), count=2)
+    waypoints = write_pose_waypoints(tmp_path / "waypoints.csv", rehearsal_scenario(), count=2)
     out = tmp_path / "recorded"
     real_cell.controller.obstruct_next_move(0.5, protective_stop=True)  # a collision on the first move
     assert real_cell.record("--waypoints", str(waypoints), "--out", str(out), "--yes", "--no-live") == 3
@@ -191,8 +175,8 @@ def test_a_protective_stop_stops_the_session_and_says_so(real_cell: RealCell, tm
 
 
 def test_dry_run_and_refusals_move_nothing(real_cell: RealCell, tmp_path: Path, capsys) -> None:
-    scenario = _scenario()
-    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", scenario, count=3)
+    scenario = rehearsal_scenario()
+    waypoints = write_pose_waypoints(tmp_path / "waypoints.csv", scenario, count=3)
     boxed = tmp_path / "boxed.toml"  # a workspace box that leaves out the waypoint farthest along base y
     y = sorted(w.T_base_flange[1, 3] for w in scenario_waypoints(scenario)[:3])
     upper = 0.5 * (y[1] + y[2])
@@ -295,7 +279,7 @@ def test_an_adaptive_session_on_the_real_cell_path_picks_from_the_taught_pool(
 ) -> None:
     """Without nominal values the first views are spread over the pool; then the running estimate
     chooses, and the session stops at the target (hec.session.adaptive)."""
-    waypoints = _write_pose_waypoints(tmp_path / "waypoints.csv", _scenario())
+    waypoints = write_pose_waypoints(tmp_path / "waypoints.csv", rehearsal_scenario())
     out = tmp_path / "adaptive"
     target = ("--target-sigma-mm", "0.2", "--target-sigma-deg", "0.02")
     assert real_cell.record("--waypoints", str(waypoints), *target, "--out", str(out), "--yes") == 0

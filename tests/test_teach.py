@@ -17,11 +17,11 @@ import pytest
 from hec.commands import teach
 from hec.commands.table import build_parser
 from hec.estimator.geometry.waypoints import read_waypoint_file
+from hec.rehearsal.rtde_loopback import LoopbackController
+from hec.rehearsal.software_d435 import SoftwareD435, d435_depth_sensor, d435_scenario
 from hec.sim.cell import SimCell
 from hec.sim.scenario import load_scenario
 from hec.sim.simulate import scenario_waypoints
-from tests.realsense_software import SoftwareD435, d435_depth_sensor, d435_scenario
-from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 
 HOST = "127.0.0.6"  # apart from the other loopback tests' addresses

@@ -13,9 +13,9 @@ import pytest
 from hec.estimator.geometry.kinematics import forward
 from hec.estimator.geometry.transforms import make_transform, pose_error
 from hec.hardware.ur_robot import MotionSettings, RobotError, SafetyLimits, URRobot
+from hec.rehearsal.rtde_loopback import LoopbackController
 from hec.sim.cell import SimCell
 from hec.sim.scenario import load_scenario
-from tests.rtde_loopback import LoopbackController
 from tests.test_rtde_loopback import Q_HOME, hang_guard
 
 HOST = "127.0.0.3"  # apart from test_rtde_loopback's addresses

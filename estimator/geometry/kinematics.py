@@ -329,3 +329,26 @@ def _nearest_turns(kin: URKinematics, q: np.ndarray, q_near: np.ndarray) -> tupl
     distance = np.where(inside, np.abs(turns - q_near[:, None]), np.inf)
     choice = np.take_along_axis(turns, np.argmin(distance, axis=2)[:, :, None], axis=2)[:, :, 0]
     return choice, inside.any(axis=2).all(axis=1)
+
+
+def ur_ik_branches(
+    kin: URKinematics, T_base_flange: np.ndarray, q_near: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> np.ndarray:
+    """(M, 6) joint solutions of a UR arm (has_ur_structure) reaching T_base_flange within lower,
+    upper (6,), radians: every closed-form branch at the turns nearest q_near (6,), and each with
+    its base and last joint a whole turn either way where that stays within the bounds (the same
+    pose, a different way there). Refined by solve_ik; those that do not converge are left out."""
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    turn = 2.0 * np.pi
+    found: list[np.ndarray] = []
+    for q in _ur_closed_form(kin, T_base_flange, q_near):
+        refined = solve_ik(kin, T_base_flange, q)
+        if not refined.converged:
+            continue
+        for d1 in (-turn, 0.0, turn):
+            for d6 in (-turn, 0.0, turn):
+                variant = refined.q + np.array([d1, 0.0, 0.0, 0.0, 0.0, d6])
+                inside = np.all(variant >= lower) and np.all(variant <= upper)
+                if inside and all(np.abs(variant - s).max() > 1e-6 for s in found):
+                    found.append(variant)
+    return np.array(found).reshape(-1, 6)

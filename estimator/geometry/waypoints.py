@@ -92,11 +92,13 @@ class Waypoint:
 @dataclass(frozen=True)
 class PlannedMove:
     """A waypoint with the joint target (6,), radians, that reaches it from the previous
-    move, or why it cannot be used (then joints is None)."""
+    move, or why it cannot be used (then joints is None); swing: the move's largest single-joint
+    swing when the planner measured it."""
 
     waypoint: Waypoint
     joints: np.ndarray | None
     problem: str | None = None
+    swing: tuple[int, float] | None = None  # the joint (0-based) that moves most to get here, radians
 
 
 # Head-on camera orientation over the board: image x along board x, looking down board -z.

@@ -55,6 +55,34 @@ COVARIANCE_CONVENTION = (
 RPY_CONVENTION = "fixed axes x, y, z of the parent (URDF): R = Rz(yaw) Ry(pitch) Rx(roll), radians"
 
 
+# The frames realsense-ros publishes as children, by suffix after its camera name (NAME, default
+# 'camera'), with their parents' suffixes: every one hangs under NAME_link, which itself has no parent.
+REALSENSE_ROS_PARENTS = {
+    "_color_frame": "_link",
+    "_color_optical_frame": "_color_frame",
+    "_depth_frame": "_link",
+    "_depth_optical_frame": "_depth_frame",
+    "_infra1_frame": "_link",
+    "_infra1_optical_frame": "_infra1_frame",
+    "_infra2_frame": "_link",
+    "_infra2_optical_frame": "_infra2_frame",
+    "_accel_frame": "_link",
+    "_accel_optical_frame": "_accel_frame",
+    "_gyro_frame": "_link",
+    "_gyro_optical_frame": "_gyro_frame",
+}
+
+
+def realsense_ros_parent(frame: str) -> str | None:
+    """The parent realsense-ros (publish_tf on) gives `frame` (NAME_color_optical_frame ->
+    NAME_color_frame, ...), or None for a frame it publishes no parent for (NAME_link, the root of
+    the camera's tree, and any other name)."""
+    for suffix, parent_suffix in REALSENSE_ROS_PARENTS.items():
+        if frame.endswith(suffix) and len(frame) > len(suffix):
+            return frame[: -len(suffix)] + parent_suffix
+    return None
+
+
 def realsense_link_optical(T_colour_depth: np.ndarray | None = None) -> np.ndarray:
     """T_link_optical (4, 4): a RealSense's camera_color_optical_frame in its camera_link (the depth
     module, where realsense-ros puts camera_link), from T_colour_depth (4, 4), the depth imager in

@@ -1,10 +1,13 @@
 """`hec export CALIBRATION.json --to FORMAT`: the calibration for the user's stack (hec.estimator.io.export).
 
-With a child frame that is the camera's root link (camera_link) the camera driver's camera_link ->
-optical frame transform is composed out; it comes from --link-optical-values, --link-optical FILE, the
-calibration's own dataset when it recorded the camera's extrinsics (a RealSense session's
-cell.camera.T_colour_depth), or else RealSense's optical rotation with zero offset, which the output
-then says."""
+The default child frame is camera_link, the root of the frames realsense-ros publishes, so the export
+gives no frame a second parent. With a child frame that is the camera's root link the camera driver's
+camera_link -> optical frame transform is composed out; it comes from --link-optical-values,
+--link-optical FILE, or the calibration's own dataset when it recorded the camera's extrinsics (a
+RealSense session's cell.camera.T_colour_depth). Without any of them the export is refused, unless
+--assume-zero-offset takes RealSense's optical rotation with zero offset (about 15 mm off on a D435),
+which the output then says. A child frame realsense-ros already publishes a parent for (the optical
+frames) gets a note saying when that is safe."""
 
 from __future__ import annotations
 
@@ -24,11 +27,18 @@ from hec.estimator.io.calibration_file import (
     pose_field,
     read_calibration,
 )
-from hec.estimator.io.export import FORMATS, PARENT_FRAMES, Export, export_text, realsense_link_optical
+from hec.estimator.io.export import (
+    FORMATS,
+    PARENT_FRAMES,
+    Export,
+    export_text,
+    realsense_link_optical,
+    realsense_ros_parent,
+)
 
-DEFAULT_CHILD = {"urdf": "camera_link"}  # other formats: the optical frame
+DEFAULT_CHILD = "camera_link"
 OPTICAL_FRAME = "camera_color_optical_frame"
-DEFAULT_LINK = "RealSense's standard optical rotation with ZERO offset (assumed: no extrinsics given)"
+DEFAULT_LINK = "RealSense's standard optical rotation with ZERO offset (assumed: --assume-zero-offset)"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -44,8 +54,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--child",
-        help=f"child frame (default: camera_link for urdf, else {OPTICAL_FRAME}); a name not ending in "
-        "_optical_frame is the camera's root link: the link -> optical transform is composed out",
+        default=DEFAULT_CHILD,
+        help="child frame (default: %(default)s, which realsense-ros publishes no parent for); a name not "
+        "ending in _optical_frame is the camera's root link: the link -> optical transform is composed out",
     )
     link = p.add_mutually_exclusive_group()
     link.add_argument(
@@ -62,6 +73,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
         help="the same as numbers, metres and quaternion x y z w (as tf2_echo prints them)",
     )
+    link.add_argument(
+        "--assume-zero-offset",
+        action="store_true",
+        help="with no extrinsics known, take RealSense's optical rotation with zero offset (about 15 mm "
+        "off on a D435)",
+    )
     p.add_argument(
         "--method", choices=list(METHOD_NAMES), help="the result to export from a --method all file"
     )
@@ -77,8 +94,9 @@ def _dataset_extrinsics(folder: Path) -> np.ndarray | None:
     return pose_field(camera, "T_colour_depth", folder / "dataset.json", CalibrationFileError)
 
 
-def link_optical(args: argparse.Namespace, cal: CalibrationFile) -> tuple[np.ndarray, str]:
-    """T_link_optical (4, 4) and where it came from, in words (module doc)."""
+def link_optical(args: argparse.Namespace, cal: CalibrationFile, child: str) -> tuple[np.ndarray, str]:
+    """T_link_optical (4, 4) and where it came from, in words (module doc); ValueError when it is
+    not known and zero is not asked for."""
     if args.link_optical_values is not None:
         if not np.all(np.isfinite(args.link_optical_values)):
             raise ValueError(
@@ -107,7 +125,14 @@ def link_optical(args: argparse.Namespace, cal: CalibrationFile) -> tuple[np.nda
         T_colour_depth = _dataset_extrinsics(Path(cal.dataset))
         if T_colour_depth is not None:
             return realsense_link_optical(T_colour_depth), f"RealSense extrinsics recorded in {cal.dataset}"
-    return realsense_link_optical(), DEFAULT_LINK
+    if args.assume_zero_offset:
+        return realsense_link_optical(), DEFAULT_LINK
+    raise ValueError(
+        f"'{child}' is the camera's root link and its transform to the optical frame is not known (the "
+        "calibration's dataset recorded no camera extrinsics); give it with --link-optical-values "
+        f"(what `ros2 run tf2_ros tf2_echo {child} {OPTICAL_FRAME}` prints) or --link-optical, or pass "
+        "--assume-zero-offset to take it as zero (about 15 mm off on a D435); nothing written"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -118,11 +143,19 @@ def run(args: argparse.Namespace) -> int:
         inputs = {"calibration file": args.calibration, "--link-optical file": args.link_optical}
         refuse_writing_over_inputs(args.out, inputs)
     cal = read_calibration(args.calibration, args.method)
-    child = args.child if args.child is not None else DEFAULT_CHILD.get(args.to, OPTICAL_FRAME)
+    child = args.child
     parent = args.parent if args.parent is not None else PARENT_FRAMES[cal.setup]
     export = Export(cal, parent, child)
+    driver_parent = realsense_ros_parent(child)
+    if driver_parent is not None:
+        print(
+            f"note: realsense-ros publishes {driver_parent} -> {child}: this export gives '{child}' a second "
+            "parent unless the camera driver runs with publish_tf:=false (or is not running); "
+            f"--child {DEFAULT_CHILD} never clashes",
+            file=sys.stderr,
+        )
     if export.composes_link:
-        T, source = link_optical(args, cal)
+        T, source = link_optical(args, cal, child)
         export = Export(cal, parent, child, T, source)
         if source == DEFAULT_LINK:
             print(
@@ -130,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
                 "(tf2_echo CHILD OPTICAL_FRAME) or --link-optical for your camera's",
                 file=sys.stderr,
             )
-    elif args.link_optical is not None or args.link_optical_values is not None:
+    elif args.link_optical is not None or args.link_optical_values is not None or args.assume_zero_offset:
         print(
             f"note: '{child}' is an optical frame; the link -> optical transform is not used", file=sys.stderr
         )

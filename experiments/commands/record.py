@@ -28,7 +28,7 @@ from hec.commands import arguments
 from hec.commands.verbs import HELP
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.common.setups import EYE_IN_HAND
-from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest
+from hec.estimator.geometry.kinematics import ROBOTS, forward, solve_ik_nearest, ur_ik_branches
 from hec.estimator.geometry.waypoints import (
     PlannedMove,
     Waypoint,
@@ -42,8 +42,10 @@ from hec.estimator.observe.frames import DatasetError, GroundTruth
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import METHODS
 from hec.estimator.solve.verify import spread_views
+from hec.session import preview
 from hec.session.adaptive import DEFAULT_MAX_VIEWS, POOL_CANDIDATES, AdaptiveViews, TargetError, sigma_target
 from hec.session.cell_config import CellConfig, CellConfigError, load_cell_config
+from hec.session.plan_text import motion_time_s, print_plan
 from hec.session.session import LiveEstimate, SessionCell, run_session
 
 if TYPE_CHECKING:
@@ -100,6 +102,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         )
         p.add_argument("--out", required=True, type=Path, help="dataset folder to create (or --resume)")
         p.add_argument("--dry-run", action="store_true", help="print the plan and stop; nothing moves")
+        preview.add_argument(p)
         p.add_argument("--yes", action="store_true", help="do not ask before the first motion")
         p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
         p.add_argument("--no-live", action="store_true", help="no detection and running estimate per frame")
@@ -134,6 +137,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 def _check_out(args: argparse.Namespace) -> None:
     if args.resume and not (args.out / "dataset.json").is_file():
         raise RecordError(f"{args.out}: no session to resume (no dataset.json)")
+    preview.check_preview_path(args)
     if not args.resume and not args.dry_run and args.out.exists():
         raise RecordError(f"{args.out} already exists; add --resume to continue it, or choose another --out")
 
@@ -181,40 +185,11 @@ def _inverse(model: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray | None
     return lambda T_base_flange, q_seed: solve_ik_nearest(kinematics, T_base_flange, q_seed)
 
 
-# ---------------------------------------------------------------- the plan
-
-
-def format_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> str:
-    """One line per waypoint: joint target (degrees) and the flange position it gives
-    (nominal kinematics, metres), or why it is skipped."""
-    lines = [f"{'#':>3}  {'label':<22} {'joints q1..q6 [deg]':<50} flange [m]"]
-    for move in moves:
-        w = move.waypoint
-        if move.joints is None:
-            lines.append(f"{w.index:>3}  {w.label:<22} skipped: {move.problem}")
-            continue
-        q = " ".join(f"{v:+7.1f}" for v in np.degrees(move.joints))
-        p = " ".join(f"{v:+.3f}" for v in forward_fk(move.joints)[:3, 3])
-        lines.append(f"{w.index:>3}  {w.label:<22} {q:<50} {p}")
-    return "\n".join(lines)
-
-
-def motion_time_s(moves: list[PlannedMove], q_start: np.ndarray, config: CellConfig) -> float:
-    """Rough duration of the session's motion: a trapezoid per joint move at the configured
-    speed and acceleration, plus the dwell and one camera burst per waypoint."""
-    speed = np.radians(config.robot.joint_speed_deg_s)
-    acceleration = np.radians(config.robot.joint_acceleration_deg_s2)
-    capture_s = config.camera.burst / config.camera.fps + 0.1
-    total, q = 0.0, q_start
-    for move in moves:
-        if move.joints is None:
-            continue
-        distance = float(np.max(np.abs(move.joints - q)))
-        ramp = speed / acceleration
-        total += distance / speed + ramp if distance > speed * ramp else 2 * np.sqrt(distance / acceleration)
-        total += config.robot.dwell_s + capture_s
-        q = move.joints
-    return total
+def _branches(model: str) -> Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    kinematics = ROBOTS[model]
+    return lambda T_base_flange, q_near, lower, upper: ur_ik_branches(
+        kinematics, T_base_flange, q_near, lower, upper
+    )
 
 
 def _confirm(text: str, read_line: Callable[[str], str] | None) -> bool:
@@ -278,7 +253,7 @@ def _record_sim(args: argparse.Namespace) -> int:
         if sigma_target(args) is not None and args.waypoints is None:
             return _record_sim_adaptive(args, cell, extra, truth)
         moves = cell.plan(waypoints)
-        _print_plan(moves, forward_fk)
+        print_plan(moves, forward_fk)
         if args.dry_run:
             print("dry run: nothing moved")
             return 0
@@ -328,8 +303,11 @@ def _record_hardware(
     kinematics = ROBOTS[config.robot.model]
     inverse = _inverse(config.robot.model)
     with config.open_robot(config.robot_host(args.robot), read_only=args.dry_run) as robot:
-        moves = plan_moves(robot, inverse, waypoints)
-        _print_plan(moves, lambda q: forward(kinematics, q))
+        cable_limit = float(np.radians(config.robot.wrist_cable_limit_deg))
+        moves = plan_moves(robot, inverse, waypoints, cable_limit, _branches(config.robot.model))
+        print_plan(moves, lambda q: forward(kinematics, q))
+        if args.preview is not None:
+            print(f"preview: {preview.write_path_preview(args.preview, moves, robot.joints())}")
         print(
             f"joint speed {config.robot.joint_speed_deg_s:g} deg/s, acceleration "
             f"{config.robot.joint_acceleration_deg_s2:g} deg/s^2, dwell {config.robot.dwell_s:g} s: "
@@ -378,12 +356,6 @@ def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: Hardw
             "frame; metres, quaternion w x y z"
         )
     return extra
-
-
-def _print_plan(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> None:
-    usable = sum(m.joints is not None for m in moves)
-    print(f"plan: {len(moves)} waypoints, {usable} to visit, {len(moves) - usable} skipped")
-    print(format_plan(moves, forward_fk))
 
 
 def _pool(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> list[Waypoint]:

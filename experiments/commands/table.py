@@ -171,6 +171,7 @@ PARSERS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "record": _module_parser("hec.commands.record", "add_parsers"),
     "run": _module_parser("hec.commands.record", "add_parsers"),
     "teach": _module_parser("hec.commands.teach"),
+    "rehearse": _module_parser("hec.commands.rehearse"),
 }
 RUNNERS = {
     "import": "hec.commands.importing",
@@ -183,6 +184,7 @@ RUNNERS = {
     "record": "hec.commands.record",
     "run": "hec.commands.record",
     "teach": "hec.commands.teach",
+    "rehearse": "hec.commands.rehearse",
     "calibrate": "hec.commands.calibrate",
 }
 

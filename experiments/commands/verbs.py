@@ -19,4 +19,5 @@ HELP = {
     "record": "record a calibration session on the real cell (or --sim) into a dataset",
     "run": "record a calibration session, then calibrate it (OUT/calibration.json)",
     "teach": "store waypoints by moving the real arm by hand (UR teach mode)",
+    "rehearse": "run the real-cell session against stand-ins of the UR and the RealSense (simulated cell)",
 }

@@ -46,6 +46,7 @@ class RobotSection(Section):
     workspace_upper_m: Vector3 = (1.0, 1.0, 1.0)
     joint_lower_deg: Vector6 = tuple(-v for v in _UR_JOINT_LIMITS_DEG)
     joint_upper_deg: Vector6 = _UR_JOINT_LIMITS_DEG
+    wrist_cable_limit_deg: float = Field(180.0, gt=0, le=720)
     pose_sigma_mm: float = Field(0.1, ge=0)
     pose_sigma_deg: float = Field(0.01, ge=0)
 

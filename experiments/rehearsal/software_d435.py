@@ -6,6 +6,13 @@ extrinsics, and push frames into it; the pipeline, the syncer, ``rs.align`` and 
 recorder then run librealsense's own code. Colour comes from the cell's camera,
 depth from the cell's separate depth sensor (another pose and other intrinsics),
 both with the scenario's noise models, stamped on the host clock.
+
+What a capture gets does not depend on timing: the noise of a frame is drawn from the seed, the
+cell's pose (counted: each change of the cell's joints is a new pose) and the frame's number since
+that change modulo ``burst``, so any ``burst`` consecutive frames at one pose carry the same draws
+and average to the same depth however late the capture starts; the colour noise is one draw per
+pose. (A capture that lost a frame within its burst, a consumer slower than the stream, would
+break that.)
 """
 
 from __future__ import annotations
@@ -73,6 +80,8 @@ class SoftwareD435:
     COLOUR_INTRINSICS; lock guards the cell (a robot stand-in may move it concurrently).
     ``context`` is the librealsense context that lists the device. depth_units_m: the
     starting depth step (a D435's default, 1 mm); the option is writable, as on a D435.
+    rng: draws the device's noise seed; burst: the frames a capture averages (the camera's
+    settings), the period of the depth noise draws at one pose (module doc).
     """
 
     def __init__(
@@ -81,10 +90,16 @@ class SoftwareD435:
         lock: threading.Lock,
         rng: np.random.Generator,
         depth_units_m: float = DEPTH_UNITS_M,
+        burst: int = 4,
     ) -> None:
         if cell.depth_sensor is None or cell.intrinsics != COLOUR_INTRINSICS:
             raise ValueError("build the cell with d435_depth_sensor() and COLOUR_INTRINSICS")
-        self.cell, self.lock, self.rng = cell, lock, rng
+        self.cell, self.lock = cell, lock
+        self.noise_seed = int(rng.integers(2**63))
+        self.burst = burst
+        self._pose: np.ndarray | None = None
+        self._pose_count = 0
+        self._frames_at_pose = 0
         self.device = rs.software_device()
         self.device.register_info(rs.camera_info.name, "Intel RealSense D435 (software device)")
         self.device.register_info(rs.camera_info.serial_number, SERIAL)
@@ -162,15 +177,23 @@ class SoftwareD435:
     def _push_one(self) -> None:
         with self.lock:
             stamp_ms = time.time() * 1000.0
+            if self._pose is None or not np.array_equal(self._pose, self.cell.joints):
+                self._pose = self.cell.joints.copy()
+                self._pose_count += 1
+                self._frames_at_pose = 0
             rgb_true, _ = self.cell.render_true()
             depth_true = self.cell.render_depth_sensor()
+        draw = self._frames_at_pose % self.burst
+        self._frames_at_pose += 1
+        depth_rng = np.random.default_rng([self.noise_seed, self._pose_count, draw])
+        rgb_rng = np.random.default_rng([self.noise_seed, self._pose_count, self.burst])
         units_m = self._depth_sensor.get_option(rs.option.depth_units)
         noise = self.cell.scenario.noise
         # The camera rounds to its current depth units, whatever the scenario's step.
         steps = noise.depth_quantisation.model_copy(update={"depth_scale_m": units_m})
         noise = noise.model_copy(update={"depth_quantisation": steps})
-        rgb = apply_rgb_models(rgb_true, noise.rgb, self.rng)
-        depth = apply_depth_models(depth_true, DEPTH_INTRINSICS, noise, self.rng)
+        rgb = apply_rgb_models(rgb_true, noise.rgb, rgb_rng)
+        depth = apply_depth_models(depth_true, DEPTH_INTRINSICS, noise, depth_rng)
         self.frames_pushed += 1
         for sensor, profile, pixels, bpp in (
             (self._depth_sensor, self._depth_profile, encode_depth(depth, units_m), 2),
