@@ -62,7 +62,15 @@ def _image_import(i: dict[str, Path], layout: str = "folder") -> list[str]:
 # Each input slot: how a command takes a file in place of the right one (argv given the inputs, the
 # work folder and that file).
 FILE_SLOTS: dict[str, object] = {
-    "export": lambda i, w, f: ["export", str(f), "--to", "json"],
+    "export": lambda i, w, f: ["export", str(f), "--to", "json", "--assume-zero-offset"],
+    "rehearse --waypoints": lambda i, w, f: [
+        "rehearse",
+        "--out",
+        str(w / "rehearsal"),
+        "--waypoints",
+        str(f),
+        "--dry-run",
+    ],
     "export --link-optical": lambda i, w, f: [
         "export",
         str(i["cal"]),
@@ -166,7 +174,10 @@ CASES: list[Case] = [
 
 # Each output slot: (argv given the inputs and the output path, what the output is: 'file' or 'folder').
 OUTPUT_SLOTS: dict[str, tuple[object, str]] = {
-    "export --out": (lambda i, o: ["export", str(i["cal"]), "--to", "json", "--out", str(o)], "file"),
+    "export --out": (
+        lambda i, o: ["export", str(i["cal"]), "--to", "json", "--assume-zero-offset", "--out", str(o)],
+        "file",
+    ),
     "plan --out": (lambda i, o: ["plan", "--views", "4", "--candidates", "50", "--out", str(o)], "file"),
     "board --out": (lambda i, o: ["board", "--out", str(o.with_suffix(".png"))], "file"),
     "board --definition": (

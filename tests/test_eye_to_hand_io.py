@@ -63,8 +63,13 @@ def calibration_file(calibrated, tmp_path_factory) -> Path:
     return path
 
 
+OPTICAL = "camera_color_optical_frame"  # the optical frame: T_base_cam itself
+
+
 def _export(calibration_file: Path, fmt: str, capsys, *more: str) -> str:
-    assert main(["export", str(calibration_file), "--to", fmt, *more]) == 0
+    """The export's text; camera_link (the default child) taken at RealSense's zero offset."""
+    more = more or ("--child", OPTICAL)
+    assert main(["export", str(calibration_file), "--to", fmt, "--assume-zero-offset", *more]) == 0
     return capsys.readouterr().out
 
 
@@ -86,7 +91,7 @@ def test_every_export_gives_back_T_base_cam_from_the_robot_base(calibration_file
     assert parent == "base_link" and np.abs(T - T_base_cam).max() < 1e-9
     words = _export(calibration_file, "ros2-args", capsys).splitlines()[-1].split()
     assert np.abs(_publisher_transform(words[4:])[0] - T_base_cam).max() < 1e-9
-    T_link, parent, child = _urdf_origin(_export(calibration_file, "urdf", capsys))
+    T_link, parent, child = _urdf_origin(_export(calibration_file, "urdf", capsys, "--child", "camera_link"))
     assert (parent, child) == ("base_link", "camera_link")
     assert np.abs(T_link @ realsense_link_optical() - T_base_cam).max() < 1e-9
     calib = yaml.safe_load(_export(calibration_file, "easy_handeye2", capsys))
