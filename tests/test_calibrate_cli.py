@@ -152,6 +152,7 @@ def test_the_default_output_is_short_and_leads_with_the_verdict(
     assert "inf" not in stdout and "chi-square" not in stdout
 
 
+@pytest.mark.needs("sim")
 def test_robot_states_a_frame_off_fail_at_the_check_before_any_estimation(
     realistic_dataset: Path, tmp_path: Path
 ) -> None:
