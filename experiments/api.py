@@ -29,11 +29,7 @@ from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.problem import (
     CalibrationProblem,
-    build_problem,
-    dataset_arm,
-    dataset_arm_name,
-    dataset_robot_noise,
-    dataset_setup,
+    dataset_problem,
 )
 from hec.support.detection import cached_or_detected
 
@@ -154,13 +150,4 @@ def write_report(
 
 
 def _problem(dataset: Dataset, observations: list[FrameObservations]) -> CalibrationProblem:
-    return build_problem(
-        observations,
-        dataset.board,
-        dataset.intrinsics,
-        dataset_robot_noise(dataset),
-        True,
-        dataset_arm(dataset),
-        arm_name=dataset_arm_name(dataset),
-        setup=dataset_setup(dataset),
-    )
+    return dataset_problem(dataset, observations)

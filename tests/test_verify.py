@@ -156,3 +156,18 @@ def test_a_calibration_that_left_the_depths_out_is_verified_without_them(calibra
     assert all(
         m.depth_m is None and m.whitening.shape[0] == m.pixel_rows for f in without.frames for m in f.markers
     )
+
+
+@pytest.mark.needs("sim")
+def test_hec_verify_of_a_fixed_camera_uses_the_eye_to_hand_model(tmp_path: Path) -> None:
+    """The command line verifies an eye-to-hand calibration in its own set-up: on its own dataset it
+    is consistent (the set-up once reached build_problem as the arm's name: 'moved 871 mm')."""
+    from tests.hec_cli import run_hec
+
+    dataset, cal = tmp_path / "ds", tmp_path / "cal.json"
+    code, _, err = run_hec(["simulate", "--scenario", "eye_to_hand", "--out", str(dataset), "--quiet"])
+    assert code == 0, err
+    code, _, err = run_hec(["calibrate", str(dataset), "--quiet", "--no-loo", "--json", str(cal)])
+    assert code == 0, err
+    code, out, err = run_hec(["verify", str(cal), str(dataset), "--quiet"])
+    assert code == 0 and "verdict: consistent" in out, out + err

@@ -276,6 +276,27 @@ def _check_pose(T: np.ndarray, what: str) -> np.ndarray:
     return T
 
 
+def dataset_problem(
+    dataset: Dataset,
+    observations: list[FrameObservations],
+    robot_noise: RobotPoseNoise | None = None,
+    use_depth: bool = True,
+) -> CalibrationProblem:
+    """build_problem with what the dataset declares: its board, camera, arm (dataset_arm,
+    dataset_arm_name), set-up (dataset_setup) and, unless robot_noise is given, its robot pose
+    noise (dataset_robot_noise)."""
+    return build_problem(
+        observations,
+        dataset.board,
+        dataset.intrinsics,
+        dataset_robot_noise(dataset) if robot_noise is None else robot_noise,
+        use_depth,
+        dataset_arm(dataset),
+        arm_name=dataset_arm_name(dataset),
+        setup=dataset_setup(dataset),
+    )
+
+
 def build_problem(
     observations: list[FrameObservations],
     board: Target,

@@ -44,11 +44,8 @@ from hec.estimator.solve.methods import METHODS
 from hec.estimator.solve.problem import (
     CalibrationInputError,
     CalibrationProblem,
-    build_problem,
-    dataset_arm,
-    dataset_arm_name,
+    dataset_problem,
     dataset_robot_noise,
-    dataset_setup,
 )
 from hec.support.detection import cached_or_detected
 
@@ -250,16 +247,7 @@ def calibrate_dataset(
         observations, source = cached_or_detected(dataset, quiet)
     if not settings.use_depth:
         observations = without_depth(observations)
-    problem = build_problem(
-        observations,
-        dataset.board,
-        dataset.intrinsics,
-        noise,
-        settings.use_depth,
-        dataset_arm(dataset),
-        arm_name=dataset_arm_name(dataset),
-        setup=dataset_setup(dataset),
-    )
+    problem = dataset_problem(dataset, observations, noise, settings.use_depth)
     _note_ignored_options(settings)
     check_poses_fit(dataset, problem)
     try:

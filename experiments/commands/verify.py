@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from hec.calibration.report import check_json_path, write_json
     from hec.estimator.common.files import refuse_writing_over_inputs
     from hec.estimator.io.dataset import dataset_inputs, load_dataset
-    from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise, dataset_setup
+    from hec.estimator.solve.problem import dataset_problem, dataset_setup
     from hec.estimator.solve.verify import format_verdict, verification_problem, verify_mount
     from hec.support.detection import cached_or_detected
 
@@ -101,15 +101,7 @@ def run(args: argparse.Namespace) -> int:
         from hec.commands.calibrate import without_depth
 
         observations = without_depth(observations)
-    problem = build_problem(
-        observations,
-        dataset.board,
-        dataset.intrinsics,
-        dataset_robot_noise(dataset),
-        cal.use_depth,
-        dataset_arm(dataset),
-        setup,
-    )
+    problem = dataset_problem(dataset, observations, use_depth=cal.use_depth)
     v = verify_mount(
         verification_problem(problem, cal.noise), cal.T_flange_cam, cal.covariance, cal.depth_scale
     )
