@@ -10,6 +10,7 @@ from collections.abc import Callable
 import numpy as np
 
 PATH_STEP_RAD = float(np.radians(0.5))  # the largest joint step between two checked samples
+CABLE_LIMIT_RAD = float(np.pi)  # the wrist's default cable limit (the cell file's wrist_cable_limit_deg)
 
 
 def joint_path(q_from: np.ndarray, q_to: np.ndarray, step_rad: float = PATH_STEP_RAD) -> np.ndarray:
@@ -83,8 +84,39 @@ def least_swing_branches(
     sum of each move's largest single-joint swing (dynamic programming over the branches), never
     using a forbidden move (i, a, b): from candidate a of waypoint i - 1 (a = 0: q_start for i = 0)
     to candidate b of waypoint i. None when no sequence is left."""
+    picks, _ = _least_swing(candidates, q_start, forbidden)
+    return picks
+
+
+def short_visit_order(candidates: list[np.ndarray], q_start: np.ndarray) -> list[int]:
+    """An order of the waypoints (indices into candidates, (M_i, 6) joint solutions of waypoint i,
+    radians) whose least-swing branches (least_swing_branches) from q_start (6,) sum to a short
+    joint travel: the given order improved by 2-opt (a stretch of the visits reversed while that
+    shortens it), the first waypoint kept first. The given order when a waypoint has no candidate."""
+    order = list(range(len(candidates)))
+    _, best = _least_swing(candidates, q_start)
+    if not np.isfinite(best):
+        return order
+    improved = True
+    while improved:
+        improved = False
+        for i in range(1, len(order) - 1):
+            for j in range(i + 1, len(order)):
+                trial = order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+                _, total = _least_swing([candidates[k] for k in trial], q_start)
+                if total < best - 1e-9:
+                    order, best, improved = trial, total, True
+    return order
+
+
+def _least_swing(
+    candidates: list[np.ndarray],
+    q_start: np.ndarray,
+    forbidden: frozenset[tuple[int, int, int]] = frozenset(),
+) -> tuple[list[int] | None, float]:
+    """least_swing_branches's choice and its sum of largest swings, radians (inf: none left)."""
     if not candidates or any(len(c) == 0 for c in candidates):
-        return None
+        return None, float("inf")
     cost = np.max(np.abs(candidates[0] - q_start), axis=1)
     cost[[b for i, _, b in forbidden if i == 0]] = np.inf
     back: list[np.ndarray] = []
@@ -97,8 +129,8 @@ def least_swing_branches(
         back.append(np.argmin(total, axis=1))
         cost = np.min(total, axis=1)
     if not np.isfinite(cost.min()):
-        return None
+        return None, float("inf")
     chosen = [int(np.argmin(cost))]
     for pointers in reversed(back):
         chosen.append(int(pointers[chosen[-1]]))
-    return chosen[::-1]
+    return chosen[::-1], float(cost.min())

@@ -19,7 +19,7 @@ import argparse
 import numpy as np
 
 from hec.estimator.common.models import models_dir
-from hec.estimator.geometry.joint_path import PATH_STEP_RAD, joint_path, path_problem
+from hec.estimator.geometry.joint_path import CABLE_LIMIT_RAD, PATH_STEP_RAD, joint_path, path_problem
 from hec.estimator.geometry.kinematics import ROBOTS, URKinematics, forward, solve_ik_nearest, ur_ik_branches
 from hec.estimator.geometry.move_plan import plan_joint_moves
 from hec.rehearsal.rig import HOME_JOINTS
@@ -28,7 +28,6 @@ from hec.sim.cell import SimCell
 from hec.sim.scenario import Scenario, load_scenario
 from hec.sim.simulate import scenario_waypoints
 
-CABLE_LIMIT_RAD = float(np.pi)
 CHECK_STEP_M = 0.001  # the verification's largest flange step, metres
 
 
