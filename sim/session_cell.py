@@ -16,9 +16,10 @@ from hec.sim.noise import waypoint_rng
 
 class SimulatedCell:
     """A SimCell behind the session interface. Planning is the real cell's (plan_joint_moves: the
-    visit order, least-swing branches of the nominal kinematics, the joint and cable limits and every
-    move's joint path checked against the MuJoCo cell's contacts), with the simulator's own check at
-    each target (every marker in view); each capture draws the noise of its waypoint
+    visit order, least-swing branches of the nominal kinematics, the joint and cable limits, and
+    every move's joint path checked against the cell model, hec.estimator.geometry.cell_model, built
+    from this cell by SimCell.cell_model), with the simulator's own checks on top (MuJoCo's contacts
+    along the path, every marker in view at each target); each capture draws the noise of its waypoint
     (hec.sim.noise.waypoint_rng(noise_seed, waypoint index)), so a session, resumed or not, draws the
     same noise as `hec simulate` with the same seed and noise seed. The cell (its model errors) is
     the SimCell's own, drawn from its seed."""
@@ -35,6 +36,7 @@ class SimulatedCell:
 
     def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]:
         kinematics = self.cell.cell.kinematics
+        cell_model = self.cell.cell_model()
         branches = None
         if has_ur_structure(kinematics):
 
@@ -47,8 +49,8 @@ class SimulatedCell:
             np.array(kinematics.q_lower),
             np.array(kinematics.q_upper),
             CABLE_LIMIT_RAD,
-            self._target_problem,
-            self.cell.collision_at,
+            lambda q: cell_model.problem(q) or self._target_problem(q),
+            lambda q: cell_model.problem(q) or self.cell.collision_at(q),
             lambda T_base_flange, q: solve_ik_nearest(kinematics, T_base_flange, q),
             branches,
         )
