@@ -54,10 +54,10 @@ def plan_joint_moves(
 
     def move_problem(q_from: np.ndarray, q_to: np.ndarray) -> str | None:
         problem = target_problem(q_to)
-        if problem is None:
-            path = joint_path(q_from, q_to)
-            problem = path_problem(path, lower, upper, q6_start, cable_limit_rad, sample_problem)
-        return problem
+        if problem is not None:
+            return f"{problem} at the waypoint"
+        path = joint_path(q_from, q_to)
+        return path_problem(path, lower, upper, q6_start, cable_limit_rad, sample_problem)
 
     planned = _least_swing_targets(
         waypoints, q, window_lower, window_upper, branches, target_problem, move_problem
