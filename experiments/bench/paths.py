@@ -9,8 +9,9 @@ limits and the cable limit; and each move's largest single-joint swing.
     python -m hec.bench.paths [--placements 50] [--seed 0] [--page docs/pages/results/paths.md]
 
 Cells: the default and the realistic scenario, then `--placements` random placements of the board
-(+-0.1 m along each base axis, +-10 degrees about each) and the mount (+-20 mm, +-10 degrees) around
-the default. The arm starts at the rehearsal's home joints.
+(+-0.1 m along each base axis, turned +-10 degrees about its normal: it lies flat on its table, into
+which a tilted board would sink and hide its markers) and the mount (+-20 mm, +-10 degrees about
+each axis) around the default. The arm starts at the rehearsal's home joints.
 """
 
 from __future__ import annotations
@@ -36,12 +37,13 @@ COUNTS = ("cell model", "MuJoCo contact", "joint limit", "cable limit")  # what 
 
 
 def random_placement(base: Scenario, rng: np.random.Generator) -> Scenario:
-    """base with the board and the mount moved at random (module doc)."""
+    """base with the board and the mount moved at random (module doc). The default board lies face
+    up, its normal along the base's y: its pitch (about base y) turns it in its plane."""
     board, mount = base.board, base.mount
     board = board.model_copy(
         update={
             "translation_m": tuple(np.add(board.translation_m, rng.uniform(-0.1, 0.1, 3))),
-            "rotation_rpy_deg": tuple(np.add(board.rotation_rpy_deg, rng.uniform(-10, 10, 3))),
+            "rotation_rpy_deg": tuple(np.add(board.rotation_rpy_deg, [0.0, rng.uniform(-10, 10), 0.0])),
         }
     )
     mount = mount.model_copy(
