@@ -175,7 +175,8 @@ def scaled_model_errors(errors: ModelErrors, factor: float) -> ModelErrors:
     sections' on/off switches. factor 1 returns the errors unchanged."""
     if factor == 1.0:
         return errors
-    arm, intrinsics, lens, depth, board = errors.arm, errors.intrinsics, errors.lens, errors.depth, errors.board
+    arm, intrinsics, lens = errors.arm, errors.intrinsics, errors.lens
+    depth, board = errors.depth, errors.board
     reported = np.asarray(lens.reported_coefficients, dtype=float)
     true_lens = reported + factor * (np.asarray(lens.true_coefficients, dtype=float) - reported)
     return errors.model_copy(
