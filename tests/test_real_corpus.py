@@ -29,9 +29,10 @@ import cv2
 import numpy as np
 import pytest
 
+from hec.estimator.io.board_file import load_board
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.targets.chessboard import CLASSIC_FLAGS
-from hec.estimator.targets.kinds import detector_for, load_board
+from hec.estimator.targets.kinds import detector_for
 from tests.hec_cli import run_hec
 
 REAL = Path(__file__).parent / "data" / "real"

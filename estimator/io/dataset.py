@@ -54,10 +54,10 @@ from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
+from hec.estimator.io.board_file import board_to_dict, load_board
 from hec.estimator.io.lock import remove_dead_partials, writers_running
 from hec.estimator.io.png import write_png
 from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError, Frame, GroundTruth
-from hec.estimator.targets.kinds import load_board
 from hec.estimator.targets.target import BoardDefinitionError, Target
 
 FORMAT = "hec-dataset"
@@ -183,7 +183,7 @@ class DatasetWriter:
             writer.writerow(frame_columns(UR_JOINTS if self.joint_count is None else self.joint_count))
             writer.writerows(self.rows)
         if self.board is not None:
-            dump_json(self.tmp_dir / "board.json", self.board.to_dict())
+            dump_json(self.tmp_dir / "board.json", board_to_dict(self.board))
         if ground_truth is not None:
             dump_json(self.tmp_dir / "ground_truth.json", ground_truth_dict(ground_truth))
         meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
