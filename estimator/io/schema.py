@@ -31,38 +31,53 @@ class FileFormat(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-def validated(model: type[FormatT], data: dict, source: str, error: type[Exception]) -> FormatT:
-    """data read as ``model``; raises ``error`` with problem_line when it does not fit."""
+def validated(
+    model: type[FormatT], data: dict, source: str, error: type[Exception], keys: bool = False
+) -> FormatT:
+    """data read as ``model``; raises ``error`` with problem_line when it does not fit. keys: name
+    fields as a settings file's keys (problem_line)."""
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise error(problem_line(exc, model, data, source)) from None
+        raise error(problem_line(exc, model, data, source, keys)) from None
 
 
-def problem_line(exc: ValidationError, model: type[BaseModel], data: dict, source: str) -> str:
-    """The first problem of a validation as one line (module doc), with how many more there are."""
+def problem_line(
+    exc: ValidationError, model: type[BaseModel], data: dict, source: str, keys: bool = False
+) -> str:
+    """The first problem of a validation as one line (module doc), with how many other fields have
+    one. keys: name a field as a TOML settings file's key, ``key 'grid.pixel_sigma_px[1]':``."""
     errors = exc.errors()
-    first = _problem(errors[0], model, data, source)
-    return first if len(errors) == 1 else f"{first} (and {len(errors) - 1} more)"
+    first = _problem(errors[0], model, data, source, keys)
+    fields = {tuple(_field_at(err["loc"], model, data)[0]) for err in errors}
+    return first if len(fields) == 1 else f"{first} (and {len(fields) - 1} more fields)"
 
 
-def _problem(err: Any, model: type[BaseModel], data: dict, source: str) -> str:
-    where, expected, value = _field_at(err["loc"], model, data)
+def _problem(err: Any, model: type[BaseModel], data: dict, source: str, keys: bool) -> str:
+    names, expected, value = _field_at(err["loc"], model, data)
+    if not names:
+        where = ""
+    elif keys:
+        where = f"key '{'.'.join(names)}':"
+    else:
+        where = f"field '{names[0]}'" if len(names) == 1 else ".".join(names)
     if err["type"] == "value_error":
         text = str(err["ctx"]["error"])
         return f"{source}: {text}" if not where else f"{source}: {where} {text}"
     if err["type"] == "extra_forbidden":
-        return f"{source}: {where} is not a field of this file"
+        if not keys:
+            return f"{source}: {where} is not a field of this file"
+        known = f"; expected one of {', '.join(model.model_fields)}" if len(names) == 1 else ""
+        return f"{source}: {where} unknown key{known}"
     expected = expected or f"is wrong: {err['msg'][0].lower()}{err['msg'][1:]}"
     if err["type"] == "missing" and value is None:
         return f"{source}: {where} is missing; it {expected}"
     return f"{source}: {where} {expected}, got {value!r}"
 
 
-def _field_at(loc: tuple, model: type[BaseModel] | None, data: object) -> tuple[str, str, object]:
-    """The field a pydantic error location points into: how a message names it ("field 'x'",
-    "markers[2].qr_mask"), what it expects (its description) and the value the file gave (None
-    when absent)."""
+def _field_at(loc: tuple, model: type[BaseModel] | None, data: object) -> tuple[list[str], str, object]:
+    """The field a pydantic error location points into: its path (["markers[2]", "qr_mask"]),
+    what it expects (its description) and the value the file gave (None when absent)."""
     names: list[str] = []
     expected = ""
     for part in loc:
@@ -79,9 +94,7 @@ def _field_at(loc: tuple, model: type[BaseModel] | None, data: object) -> tuple[
         expected = info.description or ""
         data = data.get(part) if isinstance(data, dict) else None
         model = _model_in(info.annotation)
-    if not names:
-        return "", "", data
-    return (f"field '{names[0]}'" if len(names) == 1 else ".".join(names)), expected, data
+    return names, expected, data
 
 
 def _model_in(annotation: object) -> type[BaseModel] | None:
