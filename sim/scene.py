@@ -276,8 +276,8 @@ def _add_view(body: mujoco.MjsBody, name: str, T_body_cam: np.ndarray, k: Camera
 def _sheet_texture(board: Target) -> np.ndarray:
     """(H, W, 3) uint8 texture of the printed sheet at BOARD_TEXTURE_PX_PER_M, read-only. Drawing it
     takes ~0.14 s (a sweep trial builds a scene per trial), so the last few boards' are kept, keyed
-    by the board's class and definition (its to_dict): a board printed with misplaced markers is
-    another."""
+    by the board's class and definition (its file's content, board_to_dict): a board printed with
+    misplaced markers is another."""
     key = (type(board), json.dumps(board_to_dict(board), sort_keys=True))
     with _SHEET_TEXTURES_LOCK:  # Dask may run trials on threads
         if key not in _SHEET_TEXTURES:
