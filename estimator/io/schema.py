@@ -4,8 +4,10 @@ field and what it expects.
 A format's fields carry what they expect in their ``description``, worded to follow the field's
 name ("should be an integer >= 1"); a problem then reads ``<file>: field 'tag_cols' should be an
 integer >= 1, got 0`` (a field inside a list: ``markers[2].qr_mask must be 0-7 ..., got 8``).
-A validator's ValueError is the whole message after the file's name. Numbers are checked
-strictly (no "3" for 3, no true for 1) through the types below; lists are read into tuples.
+A settings file (TOML) names them as keys instead: ``<file>: key 'trials': should be an
+integer >= 1, got 0``. A validator's ValueError is the whole message after the file's name.
+Numbers are checked strictly (no "3" for 3, no true for 1) through the types below; lists are
+read into tuples.
 """
 
 from __future__ import annotations
