@@ -46,7 +46,8 @@ def board_from_dict(d: dict, source: str = "board definition") -> Target:
 
 def board_to_dict(board: Target) -> dict:
     """The board file's content of a board (format hec-board version 1; board_from_dict reads it
-    back to an equal board)."""
+    back to an equal board). The board is written as it is, unchecked: a sheet as printed, with
+    markers off their places, is described too; reading it checks it."""
     data = BOARD_FILES[board.kind].of(board).model_dump(mode="json", exclude_none=True)
     if board.kind == "aprilgrid" and not data["corner_squares"]:
         del data["corner_squares"]  # as files without the corner squares always read

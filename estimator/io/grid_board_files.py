@@ -89,7 +89,7 @@ class AprilGridFile(SheetFile):
 
     @classmethod
     def of(cls, board: AprilGridBoard) -> AprilGridFile:
-        return cls(
+        return cls.model_construct(
             format="hec-board",
             version=1,
             kind="aprilgrid",
@@ -162,7 +162,7 @@ class ChessboardFile(SheetFile):
 
     @classmethod
     def of(cls, board: ChessboardBoard) -> ChessboardFile:
-        return cls(
+        return cls.model_construct(
             format="hec-board",
             version=1,
             kind="chessboard",
@@ -216,7 +216,7 @@ class CharucoFile(SheetFile):
 
     @classmethod
     def of(cls, board: CharucoBoard) -> CharucoFile:
-        return cls(
+        return cls.model_construct(
             format="hec-board",
             version=1,
             kind="charuco",

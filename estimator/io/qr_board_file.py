@@ -100,7 +100,7 @@ class QRBoardFile(FileFormat):
     @classmethod
     def of(cls, board: BoardDefinition) -> QRBoardFile:
         """The file of a board: each marker's entry states only what differs from the defaults."""
-        return cls(
+        return cls.model_construct(
             format="hec-board",
             version=1,
             name=board.name,
@@ -116,7 +116,7 @@ class QRBoardFile(FileFormat):
 def _marker_entry(board: BoardDefinition, marker_id: int) -> QRMarkerEntry:
     symbol = board.symbol(marker_id)
     numbered = board.payload_prefix is not None and symbol.payload == f"{board.payload_prefix}{marker_id:02d}"
-    return QRMarkerEntry(
+    return QRMarkerEntry.model_construct(
         id=marker_id,
         center_m=board.marker_centers_m[marker_id],
         payload=None if numbered else symbol.payload,
