@@ -61,3 +61,22 @@ def test_a_ground_truth_without_the_mount_is_named(dataset: Path) -> None:
     (dataset / "ground_truth.json").write_text(json.dumps(truth))
     with pytest.raises(DatasetError, match="ground_truth.json: missing field 'T_flange_cam'"):
         load_dataset(dataset)
+
+
+def test_an_import_record_read_back_is_checked(dataset: Path) -> None:
+    """The checks of an import read the pose convention back from dataset.json: a bad one is named
+    when the dataset is opened, not met later as a traceback."""
+    meta_path = dataset / "dataset.json"
+    convention = dict(rotation="rotvec", angle_unit="rad", length_unit="m", direction="base-to-flange")
+    record = {"layout": "folder", "pose_convention": convention, "pose_values": [[0.0] * 6] * 3}
+    meta = json.loads(meta_path.read_text())
+    meta_path.write_text(json.dumps(meta | {"provenance": record}))
+    assert load_dataset(dataset).metadata["provenance"] == record
+    bad = record | {"pose_convention": convention | {"rotation": "quaternion"}}
+    meta_path.write_text(json.dumps(meta | {"provenance": bad}))
+    with pytest.raises(DatasetError) as error:
+        load_dataset(dataset)
+    assert f"{meta_path}: provenance.pose_convention.rotation should be one of quat-wxyz" in str(error.value)
+    meta_path.write_text(json.dumps(meta | {"provenance": {"layout": "folder", "joints": {"unit": "deg"}}}))
+    with pytest.raises(DatasetError, match="provenance.joints.order is missing; it should be one of arm"):
+        load_dataset(dataset)

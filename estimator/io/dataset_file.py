@@ -15,6 +15,8 @@ from pydantic import ConfigDict, Field, PlainValidator, model_validator
 
 from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND, SETUPS
 from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.geometry.kinematics import JOINT_ORDERS
+from hec.estimator.io.pose_file import DIRECTIONS, ROTATIONS
 from hec.estimator.io.schema import FileFormat, Integer, Number, Positive, Text
 
 
@@ -49,6 +51,41 @@ class CameraEntry(FileFormat):
         return CameraIntrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy, tuple(self.dist))
 
 
+class PoseConventionEntry(FileFormat):
+    """What the imported pose file's numbers meant (hec.estimator.io.pose_file.PoseConvention)."""
+
+    rotation: Literal[ROTATIONS] = Field(description=f"should be one of {', '.join(ROTATIONS)}")
+    angle_unit: Literal["rad", "deg"] = Field(description="should be 'rad' or 'deg'")
+    length_unit: Literal["m", "mm"] = Field(description="should be 'm' or 'mm'")
+    direction: Literal[DIRECTIONS] = Field(description=f"should be one of {', '.join(DIRECTIONS)}")
+
+
+class JointsEntry(FileFormat):
+    """How the imported joint file wrote its angles."""
+
+    unit: Literal["rad", "deg"] = Field(description="should be 'rad' or 'deg'")
+    order: Literal[JOINT_ORDERS] = Field(description=f"should be one of {', '.join(JOINT_ORDERS)}")
+
+
+class ImportProvenance(FileFormat):
+    """dataset.json's 'provenance' of an import (hec.estimator.io.importer.provenance): what the
+    checks of an import read back (the pose convention and numbers, the joints' order) declared;
+    the record's other entries (sources, images, pairing, version, time) allowed as written."""
+
+    model_config = ConfigDict(extra="allow")
+
+    layout: Text = Field(description="should be the layout's name")
+    pose_convention: PoseConventionEntry | None = None
+    pose_values: list[list[Number]] | None = Field(None, description="should be a list of rows of numbers")
+    joints: JointsEntry | None = None
+
+    @model_validator(mode="after")
+    def _values_with_convention(self) -> ImportProvenance:
+        if (self.pose_values is None) != (self.pose_convention is None):
+            raise ValueError("field 'provenance': 'pose_values' and 'pose_convention' come together")
+        return self
+
+
 class DatasetMeta(FileFormat):
     """What hec reads of dataset.json. A dataset of pose pairs (an import of hand-eye pairs, no
     images) may have no camera and no board."""
@@ -64,6 +101,7 @@ class DatasetMeta(FileFormat):
     frames_file: Text = Field("frames.csv", description="should be a file name")
     ground_truth_file: Text | None = Field(None, description="should be a file name")
     pose_pairs_file: Text | None = Field(None, description="should be a file name")
+    provenance: ImportProvenance | None = None
 
     @model_validator(mode="after")
     def _images_described(self) -> DatasetMeta:
