@@ -23,6 +23,7 @@ from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS, arm_dict
 from hec.estimator.geometry.transforms import invert
 from hec.estimator.io.arm_file import ArmFileError, read_arm
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
@@ -33,7 +34,6 @@ from hec.estimator.io.pose_table import IMAGE_SUFFIXES
 from hec.estimator.observe.depth import DEPTH_CAMERAS, DepthNoiseModel
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.pose_pairs import PosePair
-from hec.estimator.targets.kinds import find_board
 
 LAYOUTS = ("folder", "visp", "easy_handeye2")
 IMPORT_ERRORS = (LayoutError, PoseFileError, PairingError, IntrinsicsFileError, ArmFileError)
