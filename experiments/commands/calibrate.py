@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +23,7 @@ from hec.calibration.report import (
     result_to_dict,
     write_json,
 )
-from hec.calibration.run import check_poses_fit, run_methods
+from hec.calibration.run import check_poses_fit, run_methods, without_depth
 from hec.calibration.summary import format_summary
 from hec.estimator.common.files import refuse_writing_over_inputs
 from hec.estimator.common.jsonfile import read_json_object
@@ -126,16 +126,6 @@ def method_options(settings: CalibrateSettings) -> MethodOptions:
     return MethodOptions(
         prior=prior, map_model=settings.map_model, estimate_depth_scale=settings.estimate_depth_scale
     )
-
-
-def without_depth(observations: list[FrameObservations]) -> list[FrameObservations]:
-    """Copies of the observations with every marker's depth removed (--no-depth), so that methods
-    which read depth from the raw observations (seed-ekf) see none either."""
-    gone = {"depth_m": None, "depth_cov": None, "points_cam": None, "points_cov": None}
-    return [
-        replace(o, markers=[replace(m, **gone, depth_note="depth not used (--no-depth)") for m in o.markers])
-        for o in observations
-    ]
 
 
 # ---------------------------------------------------------------- the command
