@@ -2,10 +2,11 @@
 
 The public API is hec.api, its names here: ``hec.import_dataset``, ``hec.load_dataset``,
 ``hec.detect``, ``hec.calibrate``, ``hec.write_report``, ``hec.verdict``, ``hec.findings``,
-``hec.verify``, ``hec.export``, ``hec.plan``, their result types and their errors (loaded on first
-use, so that the command line starts fast). The library is ``hec.estimator`` (detection, estimation, file
-formats), the simulated cell ``hec.sim`` (extra ``hec[sim]``) and the real cell ``hec.hardware``
-(extras ``hec[ur]`` and ``hec[realsense]``); the ``hec`` command line is ``hec.cli``.
+``hec.save_calibration``, ``hec.verify``, ``hec.export``, ``hec.plan``, their result types and their
+errors (loaded on first use, so that the command line starts fast). The library is
+``hec.estimator`` (detection, estimation, file formats), the simulated cell ``hec.sim`` (extra
+``hec[sim]``) and the real cell ``hec.hardware`` (extras ``hec[ur]`` and ``hec[realsense]``); the
+``hec`` command line is ``hec.cli``.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ API = (
     "import_dataset",
     "load_dataset",
     "plan",
+    "save_calibration",
     "verdict",
     "verify",
     "write_report",

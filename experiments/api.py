@@ -20,12 +20,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from hec.calibration.calibration_json import (
+    CalibrationContext,
+    calibration_context,
+    frame_notes,
+    robot_noise_source,
+)
 from hec.calibration.html_report import write_calibration_report
 from hec.calibration.importing import DatasetImportError, ImportOptions, ImportResult
 from hec.calibration.importing import import_dataset as _import_dataset
+from hec.calibration.loo import LOO_KEY
+from hec.calibration.report import calibration_to_dict, check_json_path, write_json
 from hec.calibration.run import check_poses_fit, run_methods
 from hec.calibration.summary import Verdict, findings, verdict
 from hec.calibration.verification import VerifyResult, verify_calibration
+from hec.estimator.common.files import refuse_writing_over_inputs
+from hec.estimator.io.dataset import dataset_inputs
 from hec.estimator.io.dataset import load_dataset as _load_dataset
 from hec.estimator.io.export_calibration import DEFAULT_CHILD, ExportError, ExportResult, export_calibration
 from hec.estimator.observe.frames import Dataset
@@ -61,6 +71,7 @@ __all__ = [
     "import_dataset",
     "load_dataset",
     "plan",
+    "save_calibration",
     "verdict",
     "verify",
     "write_report",
@@ -167,6 +178,40 @@ def write_report(
     return write_calibration_report(
         Path(directory), dataset, _problem(dataset, observations), calibration, T_true
     )
+
+
+def save_calibration(
+    path: str | Path,
+    dataset: Dataset,
+    calibration: Calibration,
+    observations: list[FrameObservations] | None = None,
+) -> Path:
+    """Write the calibration file `hec calibrate --json` writes, which verify, export and plan read.
+
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file to write (atomically; refused if it is one of the dataset's files).
+    dataset, calibration
+        The dataset and its calibration (from calibrate, with its default options).
+    observations : list of FrameObservations, optional
+        Those the calibration used; from the cache when not given.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    path = Path(path)
+    check_json_path(path)
+    refuse_writing_over_inputs(path, dataset_inputs(dataset.root), "path")
+    observations = detect(dataset) if observations is None else observations
+    cross_validated = LOO_KEY in calibration.diagnostics
+    context = CalibrationContext(robot_noise_source(dataset), loo=cross_validated)
+    T_true = None if dataset.ground_truth is None else dataset.ground_truth.hand_eye
+    data = calibration_context(dataset, _problem(dataset, observations), context)
+    data |= {"frame_notes": frame_notes(observations)} | calibration_to_dict(calibration, T_true)
+    return write_json(path, data)
 
 
 def import_dataset(
