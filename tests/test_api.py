@@ -15,6 +15,7 @@ from tests.hec_cli import run_hec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "calibrate_a_dataset.py"
+IMPORT_EXAMPLE = ROOT / "docs" / "examples" / "import_verify_export.py"
 
 
 def test_hec_offers_every_name_of_its_api() -> None:
@@ -55,13 +56,12 @@ def test_the_example_script_calibrates_as_the_command_line_does(
     assert hec.verdict(api).grade in ("good", "usable", "redo")
 
 
-def test_the_api_page_shows_the_example_as_it_is() -> None:
+def test_the_api_page_shows_the_examples_as_they_are() -> None:
     page = (ROOT / "docs" / "pages" / "api.md").read_text()
-    shown = page.split("```python\n", 1)[1].split("```", 1)[0]
-    assert EXAMPLE.read_text().split('"""\n', 2)[-1].lstrip() == shown
-
-
-IMPORT_EXAMPLE = ROOT / "docs" / "examples" / "import_verify_export.py"
+    shown = [block.split("```", 1)[0] for block in page.split("```python\n")[1:]]
+    assert [
+        example.read_text().split('"""\n', 2)[-1].lstrip() for example in (EXAMPLE, IMPORT_EXAMPLE)
+    ] == shown
 
 
 def test_the_import_example_gives_the_command_lines_dataset_transform_and_files(
