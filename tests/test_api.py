@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.hec_cli import run_hec
 
@@ -121,3 +122,40 @@ def test_the_import_example_gives_the_command_lines_dataset_transform_and_files(
     launch_api = (api / "handeye.launch.py").read_text().replace(str(api), "OUT")
     launch_cli = (cli / "handeye.launch.py").read_text().replace(str(cli), "OUT")
     assert launch_api == launch_cli
+
+
+def test_the_apis_refusals_are_typed_and_say_what_the_command_line_says(tmp_path: Path) -> None:
+    """An import without a board, an export whose camera_link -> optical transform is unknown and a
+    plan of 2 views: each raises its typed error, and `hec` prints the same message after
+    `hec: error:` with exit code 2."""
+    import hec
+
+    images = tmp_path / "images"
+    images.mkdir()
+    calibration = tmp_path / "cal.json"
+    record = {"format": "hec-calibration", "version": 1, "method": "ekf", "T_flange_cam": np.eye(4).tolist()}
+    calibration.write_text(json.dumps(record))
+    out = tmp_path / "out"
+    cases = [
+        (
+            lambda: hec.import_dataset("folder", images, out),
+            hec.DatasetImportError,
+            ["import", "folder", str(images), "--out", str(out)],
+        ),
+        (
+            lambda: hec.export(calibration, "urdf"),
+            hec.ExportError,
+            ["export", str(calibration), "--to", "urdf"],
+        ),
+        (
+            lambda: hec.plan(tmp_path / "w.csv", views=2),
+            hec.PlanError,
+            ["plan", "--out", str(tmp_path / "w.csv"), "--views", "2"],
+        ),
+    ]
+    for call, error, argv in cases:
+        with pytest.raises(error) as raised:
+            call()
+        code, stdout, stderr = run_hec(argv)
+        assert (code, stdout, stderr) == (2, "", f"hec: error: {raised.value}\n"), argv
+    assert not out.exists() and not (tmp_path / "w.csv").exists()
