@@ -63,7 +63,7 @@ def detected(dataset: Dataset) -> tuple[list[FrameObservations], list[FrameObser
 
 
 def test_the_learned_floor_makes_the_realistic_cells_corner_errors_honest(dataset: Dataset, detected) -> None:
-    """Issue 22: with the constant floor the normalised corner errors exceed 3 (25 here); with
+    """With the constant floor the normalised corner errors exceed 3 (25 here); with
     the learned one they are near 1 (1.1 here, corners and centres; 1.4-1.5 on the 17 views of
     hec.bench.corner_noise: biases all markers of a frame share do not show in their
     agreement). Graded against the corners as printed, through the true lens."""

@@ -26,7 +26,7 @@ def observations(dataset):
 
 
 def test_acceptance_on_the_default_trajectory(dataset, observations) -> None:
-    """Issue 3's bars: >= 99% of fully visible markers with the right ID, corner RMS <= 0.15 px,
+    """The detector's bars: >= 99% of fully visible markers with the right ID, corner RMS <= 0.15 px,
     and normalised errors in [0.7, 1.5] for pixels and 3D points (graded on a seed the error
     floors were not measured on)."""
     s = grade_observations(observations, dataset.ground_truth, dataset.board, dataset.intrinsics).summary()

@@ -88,3 +88,14 @@ def test_nothing_in_the_repository_names_a_round_of_work() -> None:
             continue  # images, data
         found = re.findall(r"(?i)\bstops? \d+\b", text)
         assert not found, f"{path.relative_to(ROOT)}: {found}"
+
+
+@pytest.mark.parametrize("page", [README, PAGES / "index.md"])
+def test_the_figures_the_front_page_quotes_are_the_benchmarks_own(page: Path) -> None:
+    """Every table row under "Where it stands" is a line of a results page a benchmark wrote (the
+    header and separator lines included), so the front page cannot drift from what was measured."""
+    section = page.read_text().split("## Where it stands", 1)[1].split("\n## ", 1)[0]
+    quoted = [line for line in section.splitlines() if line.startswith("|")]
+    written = {line for path in (PAGES / "results").glob("*.md") for line in path.read_text().splitlines()}
+    assert len(quoted) >= 8
+    assert [line for line in quoted if line not in written] == []

@@ -1,5 +1,5 @@
 """Boards printed by other generators: the symbols' masks, any payload, the causes of rejections,
-and markers whose quiet zone the image border cuts (issue 22)."""
+and markers whose quiet zone the image border cuts."""
 
 from __future__ import annotations
 

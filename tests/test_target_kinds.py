@@ -55,7 +55,7 @@ def test_hec_board_prints_every_kind_with_its_dpi(name: str, tmp_path: Path, cap
 
 @pytest.mark.parametrize("name", BOARDS)
 def test_rendered_default_trajectory_meets_the_acceptance(name: str) -> None:
-    """Issue 17's figures per kind, one seed: >= 99 % of fully visible points found with the right ID,
+    """The targets' figures per kind, one seed: >= 99 % of fully visible points found with the right ID,
     corner RMS <= 0.1 px, normalised corner error in [0.7, 1.5], ekf within 0.5 mm and 0.05 degrees."""
     trial = board_trial(name, seed=0)
     assert trial["detected_visible"] >= 0.99 * trial["visible_markers"] > 0
