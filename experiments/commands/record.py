@@ -273,7 +273,7 @@ def _record_sim_adaptive(
 ) -> int:
     """The adaptive session on the simulated cell, its pool POOL_CANDIDATES candidate views drawn
     around the scenario's nominal values (from the session's seed)."""
-    from hec.commands.plan import scenario_candidates
+    from hec.session.view_plan import scenario_candidates
 
     seed = extra["simulation"]["seed"]
     pool = scenario_candidates(
