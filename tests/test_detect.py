@@ -26,7 +26,7 @@ def observations(dataset):
 
 
 def test_acceptance_on_the_default_trajectory(dataset, observations) -> None:
-    """Issue 3's bars: >= 99% of fully visible markers with the right ID, corner RMS <= 0.15 px,
+    """The detector's bars: >= 99% of fully visible markers with the right ID, corner RMS <= 0.15 px,
     and normalised errors in [0.7, 1.5] for pixels and 3D points (graded on a seed the error
     floors were not measured on)."""
     s = grade_observations(observations, dataset.ground_truth, dataset.board, dataset.intrinsics).summary()
@@ -161,7 +161,7 @@ def test_blurred_image_is_called_blurred(dataset) -> None:
 def test_code_fit_covariance_matches_the_scatter_of_repeated_fits() -> None:
     """A marker warped into a synthetic image; fresh noise many times. The predicted
     (noise-only) covariance must match the spread of the fitted corners."""
-    from hec.estimator.targets.kinds import find_board
+    from hec.estimator.io.board_file import find_board
 
     board = find_board("hec_8qr")
     marker_id = board.marker_ids[0]

@@ -34,7 +34,16 @@ def test_the_documentation_site_builds_strictly(tmp_path: Path) -> None:
     assert built.returncode == 0, built.stderr
     assert (tmp_path / "site" / "calibrate" / "index.html").is_file()
     api = (tmp_path / "site" / "api" / "index.html").read_text()
-    for name in ("load_dataset", "detect", "calibrate", "verdict", "findings", "write_report"):
+    functions = (
+        "load_dataset",
+        "detect",
+        "calibrate",
+        "verdict",
+        "findings",
+        "write_report",
+        "save_calibration",
+    )
+    for name in (*functions, "import_dataset", "verify", "export", "plan", "ImportOptions", "ViewPlan"):
         assert f'id="hec.api.{name}"' in api, name  # rendered from the docstrings (mkdocstrings)
 
 
@@ -79,3 +88,14 @@ def test_nothing_in_the_repository_names_a_round_of_work() -> None:
             continue  # images, data
         found = re.findall(r"(?i)\bstops? \d+\b", text)
         assert not found, f"{path.relative_to(ROOT)}: {found}"
+
+
+@pytest.mark.parametrize("page", [README, PAGES / "index.md"])
+def test_the_figures_the_front_page_quotes_are_the_benchmarks_own(page: Path) -> None:
+    """Every table row under "Where it stands" is a line of a results page a benchmark wrote (the
+    header and separator lines included), so the front page cannot drift from what was measured."""
+    section = page.read_text().split("## Where it stands", 1)[1].split("\n## ", 1)[0]
+    quoted = [line for line in section.splitlines() if line.startswith("|")]
+    written = {line for path in (PAGES / "results").glob("*.md") for line in path.read_text().splitlines()}
+    assert len(quoted) >= 8
+    assert [line for line in quoted if line not in written] == []

@@ -1,4 +1,4 @@
-"""Faults found by the fault-injection pass of issue 18 (beside its listed cases): values a file
+"""Faults found by a fault-injection pass (beside the fault table's cases): values a file
 must not hold (infinity, a ragged waypoint row, a NaN flange pose, frames out of order), temporary
 files left when a write fails, a file replaced by a dataset, SIGTERM, SIGHUP and Ctrl-C to
 commands that had no handler or while hec still imports its libraries, a signal during the clean-up,

@@ -9,8 +9,8 @@ of import and calibrate gave bit-identical translations and leave-one-frame-out 
 tolerance only has to absorb floating-point differences between machines and library builds.
 TOLERANCE_MM is 0.01 mm, under a twentieth of the smallest 1-sigma hec reports on these sets (0.22 mm),
 so any change that means something (a corner found or lost, another outlier gate, another noise level)
-fails and has to be looked at and the figures re-recorded (python -m tests.test_real_corpus prints
-the tables of tests/data/real/README.md).
+fails and has to be looked at and the figures re-recorded (`python -m hec.bench.real_corpus --page
+docs/pages/results/real-corpus.md` measures them and writes the page the documentation quotes).
 
 Where hec stands, leave-one-frame-out mm in the base frame, in the self-calibrated model: better on
 ur_xtion_chessboard (ekf 0.551 against OpenCV Park's 0.560), worse on franka_d435_charuco (4.107
@@ -21,7 +21,6 @@ all three (0.613 against 0.560; 4.535 against 3.892; 10.670 against 7.786).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,12 +28,13 @@ import cv2
 import numpy as np
 import pytest
 
+from hec.bench.real_corpus import REAL, calibrate_json, import_set, summary_cells
+from hec.estimator.io.board_file import load_board
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.targets.chessboard import CLASSIC_FLAGS
-from hec.estimator.targets.kinds import detector_for, load_board
+from hec.estimator.targets.kinds import detector_for
 from tests.hec_cli import run_hec
 
-REAL = Path(__file__).parent / "data" / "real"
 TOLERANCE_MM = 0.01
 
 
@@ -52,8 +52,7 @@ class Figures:
 
 @dataclass(frozen=True)
 class RealSet:
-    name: str
-    import_options: tuple[str, ...]
+    name: str  # its `hec import` options: hec.bench.real_corpus.IMPORT_OPTIONS
     frames_used: int
     ekf: Figures
     opencv_method: str
@@ -68,7 +67,6 @@ SETS = [
     # T_flange_cam is then T_base_cam (SOURCE.md). Frame 2 has no board marker hec finds.
     RealSet(
         "ical_charuco_eye_to_hand",
-        ("--pose-direction", "flange-to-base", "--intrinsics", "camera.yaml"),
         15,
         Figures((-19.3142, 1265.8261, 289.1748), 206, 1.599, 10.670),
         "opencv-shah",
@@ -77,7 +75,6 @@ SETS = [
     ),
     RealSet(
         "ur_xtion_chessboard",
-        ("--rotation", "rotvec", "--intrinsics", "camera.yml"),
         18,
         Figures((-89.0190, 24.3880, 14.9218), 961, 0.551, 0.613),
         "opencv-park",
@@ -85,7 +82,6 @@ SETS = [
     ),
     RealSet(
         "franka_d435_charuco",
-        ("--rotation", "matrix", "--intrinsics", "camera.yaml"),
         12,
         Figures((48.7147, 10.0168, -39.2965), 264, 4.107, 4.535),
         "opencv-tsai",
@@ -96,17 +92,8 @@ SETS = [
 
 
 def _import(real_set: RealSet, out: Path, poses: Path | None = None, extra: tuple[str, ...] = ()) -> str:
-    """`hec import folder` of the set (with another pose file or folder, and extra options, if given)
-    into out; returns what it printed."""
-    folder = REAL / real_set.name
-    poses = poses or folder / "poses.csv"
-    options = [o if not o.endswith((".yaml", ".yml")) else str(folder / o) for o in real_set.import_options]
-    code, stdout, stderr = run_hec(
-        ["import", "folder", str(folder / "images"), "--poses", str(poses), *options, *extra,
-         "--board", str(folder / "board.json"), "--out", str(out), "--quiet"]
-    )  # fmt: skip
-    assert code == 0, stderr
-    return stdout + stderr
+    """`hec import folder` of the set into out (hec.bench.real_corpus.import_set); what it printed."""
+    return import_set(real_set.name, out, poses, extra)
 
 
 def _assert_same_poses(imported: Path, from_csv: Path) -> None:
@@ -119,13 +106,7 @@ def _assert_same_poses(imported: Path, from_csv: Path) -> None:
 
 
 def _calibrate(dataset: Path, method: str) -> dict:
-    out = dataset.parent / f"{method}.json"
-    # --loo-all: every method cross-validated, whatever the machine's speed.
-    code, _, stderr = run_hec(
-        ["calibrate", str(dataset), "--method", method, "--json", str(out), "--quiet", "--loo-all"]
-    )
-    assert code == 0, stderr
-    return json.loads(out.read_text())
+    return calibrate_json(dataset, method)
 
 
 def _check(result: dict, expected: Figures) -> None:
@@ -161,6 +142,8 @@ def test_a_real_set_imports_and_calibrates_to_the_recorded_figures(real_set: Rea
         m: r["leave_one_frame_out"]["rms_mm"] for m, r in by_method.items() if m.startswith("opencv")
     }
     assert min(opencv_loo, key=opencv_loo.get) == real_set.opencv_method
+    # The row hec.bench.real_corpus writes on the documentation's page is the pinned one.
+    assert "| " + " | ".join(summary_cells(real_set.name, result)) + " |" == _pinned_summary_row(real_set)
 
 
 def test_every_chessboard_frame_an_opencv_finder_finds_hec_finds() -> None:
@@ -263,56 +246,6 @@ def test_every_real_set_has_its_source_and_licence_and_stays_small() -> None:
         assert len(images) >= 10, folder.name
 
 
-def _table(real_set: RealSet, result: dict) -> str:
-    """The markdown table of one set's `hec calibrate --method all --json` output."""
-    left_out = "; ".join(result["frames_left_out"])
-    lines = [
-        f"### {real_set.name}",
-        "",
-        f"{result['frames_used']} frames used" + (f"; left out: {left_out}" if left_out else "") + ".",
-        "",
-        "| method | x mm | y mm | z mm | 1-sigma mm | residual px | LOO px | LOO mm | declared LOO px | "
-        "declared LOO mm | used/rejected |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for m in result["results"]:
-        if "error" in m:
-            lines.append(f"| {m['method']} | failed: {m['error'].split(' (')[0]} | | | | | | | | | |")
-            continue
-        t, sigma = m["translation_mm"], m["sigma_translation_mm"]
-        rss = f"{np.linalg.norm(sigma):.3f}" if sigma else "-"
-        loo_cells = " | ".join(
-            f"{loo['rms_px']:.3f} | {loo['rms_mm']:.3f}" if isinstance(loo, dict) else "not run | not run"
-            for loo in (m["leave_one_frame_out"], m["leave_one_frame_out_declared"])
-        )
-        lines.append(
-            f"| {m['method']} | {t[0]:.3f} | {t[1]:.3f} | {t[2]:.3f} | {rss} | {m['residual_rms_px']:.3f} | "
-            f"{loo_cells} | {m['observations_used']}/{m['observations_rejected']} |"
-        )
-    model = next(m["leave_one_frame_out"]["model"] for m in result["results"] if m.get("leave_one_frame_out"))
-    lines += [
-        "",
-        f"LOO: every method's folds in the same model, {model}. Declared LOO: in the declared model.",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def _summary_row(real_set: RealSet, result: dict) -> str:
-    """One set's row of the README's summary: ekf and the best OpenCV method, both models (mm)."""
-    by_method = {r["method"]: r for r in result["results"] if "error" not in r}
-    opencv = {m: r for m, r in by_method.items() if "opencv" in m}
-    best = min(opencv, key=lambda m: opencv[m]["leave_one_frame_out"]["rms_mm"])
-    cells = [
-        by_method[m][key]["rms_mm"]
-        for key in ("leave_one_frame_out", "leave_one_frame_out_declared")
-        for m in ("ekf", best)
-    ]
-    ratio = cells[0] / cells[1]
-    verdict = "hec better" if ratio < 1.0 else f"hec loses ({ratio:.2f}x)"
-    figures = f"{cells[0]:.3f} | {cells[1]:.3f} ({best}) | {cells[2]:.3f} | {cells[3]:.3f}"
-    return f"| {real_set.name} | {figures} | {verdict} |"
-
-
 def test_a_frame_whose_points_are_all_rejected_says_so_on_a_real_set(tmp_path: Path) -> None:
     """ical's frame 2 shows the board at its edge: OpenCV proposes 4 ChArUco corners and none has
     the 3 neighbours its fit needs. The frame says that, not that no board was found."""
@@ -355,7 +288,7 @@ def test_industrial_calibrations_pose_folder_imports_as_the_csv_does(tmp_path: P
 
 
 def _pinned_summary_row(real_set: RealSet) -> str:
-    """A set's summary row as its pinned figures give it (_summary_row on the live run)."""
+    """A set's summary row as its pinned figures give it (hec.bench.real_corpus.summary_cells on a run)."""
     ekf, best = real_set.ekf, real_set.opencv
     ratio = ekf.loo_mm / best.loo_mm
     verdict = "hec better" if ratio < 1.0 else f"hec loses ({ratio:.2f}x)"
@@ -366,29 +299,14 @@ def _pinned_summary_row(real_set: RealSet) -> str:
     return f"| {real_set.name} | {figures} | {verdict} |"
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/pages/index.md", "docs/pages/calibrate.md"])
+@pytest.mark.parametrize(
+    "page",
+    ["docs/pages/results/real-corpus.md", "README.md", "docs/pages/index.md", "docs/pages/calibrate.md"],
+)
 def test_the_documentation_shows_the_pinned_figures(page: str) -> None:
-    """The summary table wherever the documentation shows it holds the figures this test pins (and the
-    live run must reproduce), so it cannot drift from what the corpus gives."""
+    """The summary table wherever the documentation shows it (first on the page the benchmark writes)
+    holds the figures this test pins and the live run must reproduce, so it cannot drift from what the
+    corpus gives."""
     text = (REAL.parents[2] / page).read_text()
     for real_set in SETS:
         assert _pinned_summary_row(real_set) in text, (page, _pinned_summary_row(real_set))
-
-
-if __name__ == "__main__":
-    # python -m tests.test_real_corpus: import every set and print `hec calibrate --method all` as the
-    # tables of tests/data/real/README.md, then the summary table of the top-level README.
-    import tempfile
-
-    summary = [
-        "| set | ekf LOO mm | best OpenCV LOO mm | ekf declared | that OpenCV declared | in the same model |",
-        "|---|---|---|---|---|---|",
-    ]
-    with tempfile.TemporaryDirectory() as temporary:
-        for real_set in SETS:
-            dataset = Path(temporary) / real_set.name
-            _import(real_set, dataset)
-            result = _calibrate(dataset, "all")
-            print(_table(real_set, result))
-            summary.append(_summary_row(real_set, result))
-    print("\n".join(summary))

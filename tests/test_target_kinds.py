@@ -14,7 +14,8 @@ from hec.bench.targets import board_trial
 from hec.cli import main
 from hec.commands.printable import printable_board
 from hec.estimator.common.models import models_dir
-from hec.estimator.targets.kinds import detector_for, find_board, load_board
+from hec.estimator.io.board_file import find_board, load_board
+from hec.estimator.targets.kinds import detector_for
 
 BOARDS = sorted(p.stem for p in (models_dir() / "boards").glob("*.json"))
 
@@ -55,7 +56,7 @@ def test_hec_board_prints_every_kind_with_its_dpi(name: str, tmp_path: Path, cap
 
 @pytest.mark.parametrize("name", BOARDS)
 def test_rendered_default_trajectory_meets_the_acceptance(name: str) -> None:
-    """Issue 17's figures per kind, one seed: >= 99 % of fully visible points found with the right ID,
+    """The targets' figures per kind, one seed: >= 99 % of fully visible points found with the right ID,
     corner RMS <= 0.1 px, normalised corner error in [0.7, 1.5], ekf within 0.5 mm and 0.05 degrees."""
     trial = board_trial(name, seed=0)
     assert trial["detected_visible"] >= 0.99 * trial["visible_markers"] > 0

@@ -7,8 +7,10 @@ detection time per frame (including the depth fit), and per method the median an
 translation and rotation error of T_flange_cam over the seeds with its mean pose NEES (6 when the
 reported covariance is honest).
 
-    .venv/bin/python -m hec.bench.targets [--seeds 3] [--boards NAME,...] [--scenario realistic]
-    (default: every board in models/boards/, the ideal default cell)
+    .venv/bin/python -m hec.bench.targets [--seeds 3] [--boards NAME,...] [--scenario default realistic]
+        [--page PATH.md]
+    (default: every board in models/boards/, the ideal default cell; --page also writes the tables as
+    a documentation page)
 
 With --scenario, the cell's model errors apply to every board; a board printed as one pattern
 (every kind but QR) gets no per-marker placement error (errors.board.marker_placement_sigma_m = 0),
@@ -30,16 +32,17 @@ import hec.sim as sim  # noqa: F401  (selects the GL backend before mujoco loads
 from hec.estimator.common.models import models_dir
 from hec.estimator.geometry.lie import pose_nees
 from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.tomlfile import read_toml
 from hec.estimator.observe.grading import grade_observations
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.methods import solve
 from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
-from hec.estimator.targets.kinds import find_board
 from hec.estimator.targets.qr import DetectorSettings
 from hec.sim.scenario import Scenario, ScenarioError, resolve_scenario_path, scenario_from_dict
 from hec.sim.simulate import simulate_in_memory
 from hec.support.detection import detect_dataset
+from hec.support.results_page import write_results_page
 
 BOARDS = tuple(sorted(p.stem for p in (models_dir() / "boards").glob("*.json")))
 METHODS = ("ekf", "batch", "opencv-park", "opencv-daniilidis")
@@ -128,12 +131,35 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=3, help="seeds per board (default 3)")
     parser.add_argument("--boards", default=",".join(BOARDS), help="comma-separated board names")
     parser.add_argument(
-        "--scenario", help="a scenario file or name in models/scenarios/ (default: the ideal cell)"
+        "--scenario",
+        nargs="+",
+        default=["default"],
+        help="scenario files or names in models/scenarios/ (default: the ideal cell, default)",
     )
+    parser.add_argument("--page", type=Path, help="also write the tables as this Markdown page")
     args = parser.parse_args(argv)
-    for board in args.boards.split(","):
-        trials = [board_trial(board, seed, args.scenario) for seed in range(args.seeds)]
-        print(_table(board, trials), flush=True)
+    sections = []
+    for scenario in args.scenario:
+        print(f"scenario {scenario}:")
+        sections.append(f"## {scenario}")
+        for board in args.boards.split(","):
+            trials = [board_trial(board, seed, scenario) for seed in range(args.seeds)]
+            table = _table(board, trials)
+            print(table, flush=True)
+            sections.append("```\n" + table.strip("\n") + "\n```")
+    if args.page:
+        intro = (
+            "Every board kind on the same sheet and scenario (trajectory, noise, camera, board pose),"
+            " rendered, detected, graded against the truth and calibrated: markers found, wrong IDs,"
+            " corner RMS and normalised error (1 when the covariances are honest), detection time per"
+            " frame, and per method the median and worst error of T_flange_cam over"
+            f" {args.seeds} seeds with its mean NEES (6 when honest)."
+        )
+        command = (
+            f"python -m hec.bench.targets --seeds {args.seeds} --boards {args.boards}"
+            f" --scenario {' '.join(args.scenario)} --page {args.page}"
+        )
+        write_results_page(args.page, "Target kinds", command, [intro, *sections])
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""View-planning benchmark (issue 20): how many views each way of choosing them needs to reach a
+"""View-planning benchmark: how many views each way of choosing them needs to reach a
 Cramer-Rao bound, and whether calibrations on planned views are as accurate as predicted.
 
 Placement p draws everything from numpy.random.default_rng([seed, p]): a random mount
@@ -35,8 +35,9 @@ timed beside one default-method calibration of the default 17 views, in the main
 
     .venv/bin/python -m hec.bench.view_planning [--placements 50] [--seed 0]
         [--candidates 1000] [--corner-sigma-px 0.02] [--render-placements 0] [--workers 2]
-        [--json OUT] [--plot OUT.png]
+        [--json OUT] [--plot OUT.png] [--page PATH.md]
 
+--page also writes the summary as a documentation page (with the plot, PAGE's stem .png, beside it).
 Exit status 1 when an acceptance line fails.
 """
 
@@ -49,7 +50,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
+import io  # noqa: E402
 import math  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -98,6 +101,7 @@ from hec.estimator.targets.target import Target  # noqa: E402
 from hec.sim.cell import SimCell  # noqa: E402
 from hec.sim.noise import depth_noise_model, robot_pose_noise_model  # noqa: E402
 from hec.sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.support.results_page import write_results_page  # noqa: E402
 from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount  # noqa: E402
 from hec.sweep.rows import SweepError  # noqa: E402
 
@@ -335,6 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--plot", type=Path)
+    parser.add_argument("--page", type=Path, help="also write the summary as this Markdown page")
     args = parser.parse_args(argv)
     if args.placements < 1 or args.candidates < MAX_VIEWS or args.corner_sigma_px <= 0:
         parser.error(f"--placements >= 1, --candidates >= {MAX_VIEWS} and --corner-sigma-px > 0")
@@ -354,13 +359,24 @@ def main(argv: list[str] | None = None) -> int:
     elapsed = time.perf_counter() - start
     timing = time_planning(args.seed, args.candidates, args.corner_sigma_px)
     summary = summarise(placements)
-    print_summary(summary, timing, args.corner_sigma_px)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        print_summary(summary, timing, args.corner_sigma_px)
+    print(printed.getvalue(), end="")
     print(f"\n{len(placements)} placements in {elapsed:.0f} s")
     if args.json is not None:
         write_json(args.json, {"summary": summary, "timing": timing, "placements": placements})
     if args.plot is not None:
         plot(placements, summary, args.plot)
         print(f"wrote {args.plot}")
+    if args.page is not None:
+        picture = args.page.with_suffix(".png")
+        plot(placements, summary, picture)
+        options = argv if argv is not None else sys.argv[1:]
+        command = " ".join(["python -m hec.bench.view_planning", *options])
+        body = [__doc__.split("\n\n")[0].replace("\n", " "), f"![the strategies]({picture.name})"]
+        body.append("```\n" + printed.getvalue().strip("\n") + "\n```")
+        write_results_page(args.page, "View planning", command, body)
     return 0 if all(passed for _, passed in acceptance(summary, timing)) else 1
 
 
