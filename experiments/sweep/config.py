@@ -41,7 +41,8 @@ from pydantic import Field, StrictStr, model_validator
 from hec.estimator.io.schema import validated
 from hec.estimator.io.tomlfile import Section, read_toml
 from hec.estimator.targets.target import BoardDefinitionError
-from hec.sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
+from hec.sim.model_errors import scaled_depth_bias, scaled_model_errors
+from hec.sim.scenario import ModelErrors, Scenario, ScenarioError, load_scenario, scenario_from_dict
 from hec.sweep.parameters import (
     ERROR_SOURCES,
     FULL_VIEWS,
@@ -77,6 +78,7 @@ def scenario_defaults(scenario: Scenario) -> dict[str, Any]:
         "error_sources": error_sources_name(
             tuple(n for n in ERROR_SOURCES if getattr(scenario.errors, n).enabled)
         ),
+        "error_scale": 1.0,
         "mount": "fixed",
         "setup": scenario.setup,
         "board": scenario.board.definition,
@@ -89,12 +91,11 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
     data = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
     noise = {k: dict(v) for k, v in data.get("noise", {}).items()}
     noise["depth"] = {**noise.get("depth", {}), "enabled": True, "subpixel": params["depth_subpixel"]}
-    scale, offset = params["depth_bias_scale"], params["depth_bias_offset_mm"]
-    noise["depth_bias"] = {
-        "enabled": scale != 1.0 or offset != 0.0,
-        "scale": scale,
-        "offset_m": 1e-3 * offset,
-    }
+    error_scale = params.get("error_scale", 1.0)
+    scale, offset_m = scaled_depth_bias(
+        params["depth_bias_scale"], 1e-3 * params["depth_bias_offset_mm"], error_scale
+    )
+    noise["depth_bias"] = {"enabled": scale != 1.0 or offset_m != 0.0, "scale": scale, "offset_m": offset_m}
     noise["robot_pose"] = {
         "enabled": True,
         "translation_sigma_m": 1e-3 * params["robot_translation_sigma_mm"],
@@ -112,6 +113,9 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
         on = error_source_set(params["error_sources"])
         errors = {k: dict(v) for k, v in data.get("errors", {}).items()}
         data["errors"] = {n: {**errors.get(n, {}), "enabled": n in on} for n in ERROR_SOURCES}
+    if error_scale != 1.0:
+        errors = scaled_model_errors(ModelErrors.model_validate(data.get("errors", {})), error_scale)
+        data["errors"] = errors.model_dump(mode="json")
     return scenario_from_dict(data, source=source, base_dir=Path(base_dir))
 
 
