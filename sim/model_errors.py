@@ -16,7 +16,7 @@ from hec.estimator.geometry.lie import so3_exp
 from hec.estimator.geometry.transforms import make_transform
 from hec.estimator.targets.board import BoardDefinition
 from hec.estimator.targets.target import Target
-from hec.sim.scenario import ArmErrors, BoardErrors, Scenario
+from hec.sim.scenario import ArmErrors, BoardErrors, ModelErrors, Scenario
 
 
 @dataclass(frozen=True)
@@ -164,3 +164,55 @@ def _printed_board(board: Target, errors: BoardErrors, rng: np.random.Generator)
         for (i, c), (dx, dy) in zip(board.marker_centers_m.items(), shifts, strict=True)
     }
     return PrintedBoard(replace(board, marker_centers_m=centers), scale, tuple(errors.bend_m))
+
+
+def scaled_model_errors(errors: ModelErrors, factor: float) -> ModelErrors:
+    """The model errors with every systematic magnitude multiplied by factor (>= 0): the arm's
+    joint offsets, lengths and twists, the intrinsics' focal and principal-point errors, the
+    lens' departure from its reported coefficients, the depth registration error, and the
+    print's scale error, sag and marker placement. Per-frame noise (encoder, image) and what is
+    not a magnitude (depth correlation length, flying pixels, holes) stay as they are; so do the
+    sections' on/off switches. factor 1 returns the errors unchanged."""
+    if factor == 1.0:
+        return errors
+    arm, intrinsics, lens = errors.arm, errors.intrinsics, errors.lens
+    depth, board = errors.depth, errors.board
+    reported = np.asarray(lens.reported_coefficients, dtype=float)
+    true_lens = reported + factor * (np.asarray(lens.true_coefficients, dtype=float) - reported)
+    return errors.model_copy(
+        update={
+            "arm": arm.model_copy(
+                update={
+                    "joint_offset_sigma_deg": factor * arm.joint_offset_sigma_deg,
+                    "link_length_sigma_m": factor * arm.link_length_sigma_m,
+                    "twist_sigma_deg": factor * arm.twist_sigma_deg,
+                }
+            ),
+            "intrinsics": intrinsics.model_copy(
+                update={
+                    "focal_sigma_fraction": factor * intrinsics.focal_sigma_fraction,
+                    "principal_point_sigma_px": factor * intrinsics.principal_point_sigma_px,
+                }
+            ),
+            "lens": lens.model_copy(update={"true_coefficients": tuple(float(c) for c in true_lens)}),
+            "depth": depth.model_copy(
+                update={
+                    "registration_translation_sigma_m": factor * depth.registration_translation_sigma_m,
+                    "registration_rotation_sigma_deg": factor * depth.registration_rotation_sigma_deg,
+                }
+            ),
+            "board": board.model_copy(
+                update={
+                    "scale_error": tuple(factor * s for s in board.scale_error),
+                    "bend_m": tuple(factor * b for b in board.bend_m),
+                    "marker_placement_sigma_m": factor * board.marker_placement_sigma_m,
+                }
+            ),
+        }
+    )
+
+
+def scaled_depth_bias(scale: float, offset_m: float, factor: float) -> tuple[float, float]:
+    """A depth bias z_measured = scale * z + offset_m with its departure from the exact depth
+    multiplied by factor: (1 + factor (scale - 1), factor offset_m)."""
+    return 1.0 + factor * (scale - 1.0), factor * offset_m

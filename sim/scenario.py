@@ -18,8 +18,8 @@ from hec.estimator.common.models import models_dir
 from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_rpy
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.tomlfile import Section, read_toml, validation_problems
-from hec.estimator.targets.kinds import find_board
 from hec.estimator.targets.target import Target
 
 Vector3 = tuple[float, float, float]

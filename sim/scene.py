@@ -26,6 +26,7 @@ from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import ROBOTS, URKinematics
 from hec.estimator.geometry.lie import so3_exp
 from hec.estimator.geometry.transforms import invert, make_transform, xyz_quat_from_transform
+from hec.estimator.io.board_file import board_to_dict
 from hec.estimator.targets.target import Target
 from hec.sim.model_errors import PrintedBoard
 from hec.sim.scenario import ScenarioError
@@ -275,9 +276,9 @@ def _add_view(body: mujoco.MjsBody, name: str, T_body_cam: np.ndarray, k: Camera
 def _sheet_texture(board: Target) -> np.ndarray:
     """(H, W, 3) uint8 texture of the printed sheet at BOARD_TEXTURE_PX_PER_M, read-only. Drawing it
     takes ~0.14 s (a sweep trial builds a scene per trial), so the last few boards' are kept, keyed
-    by the board's class and definition (its to_dict): a board printed with misplaced markers is
-    another."""
-    key = (type(board), json.dumps(board.to_dict(), sort_keys=True))
+    by the board's class and definition (its file's content, board_to_dict): a board printed with
+    misplaced markers is another."""
+    key = (type(board), json.dumps(board_to_dict(board), sort_keys=True))
     with _SHEET_TEXTURES_LOCK:  # Dask may run trials on threads
         if key not in _SHEET_TEXTURES:
             # Printed reflectance: paper about 0.85, ink about 0.06, so lit white and black stay

@@ -10,11 +10,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.hec_cli import run_hec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "calibrate_a_dataset.py"
+IMPORT_EXAMPLE = ROOT / "docs" / "examples" / "import_verify_export.py"
 
 
 def test_hec_offers_every_name_of_its_api() -> None:
@@ -55,7 +57,105 @@ def test_the_example_script_calibrates_as_the_command_line_does(
     assert hec.verdict(api).grade in ("good", "usable", "redo")
 
 
-def test_the_api_page_shows_the_example_as_it_is() -> None:
+def test_the_api_page_shows_the_examples_as_they_are() -> None:
     page = (ROOT / "docs" / "pages" / "api.md").read_text()
-    shown = page.split("```python\n", 1)[1].split("```", 1)[0]
-    assert EXAMPLE.read_text().split('"""\n', 2)[-1].lstrip() == shown
+    shown = [block.split("```", 1)[0] for block in page.split("```python\n")[1:]]
+    assert [
+        example.read_text().split('"""\n', 2)[-1].lstrip() for example in (EXAMPLE, IMPORT_EXAMPLE)
+    ] == shown
+
+
+def test_the_import_example_gives_the_command_lines_dataset_transform_and_files(
+    default_dataset: Path, tmp_path: Path
+) -> None:
+    """The example imports an image folder with poses, calibrates, verifies and exports through
+    hec.*; the same steps through the command line give the same frames, transform, verification and
+    launch file (up to the paths they name)."""
+    from hec.estimator.io.dataset import load_dataset
+    from hec.estimator.io.intrinsics_file import write_opencv_intrinsics
+    from hec.estimator.io.layouts import write_folder
+    from hec.estimator.io.pose_file import PoseConvention
+
+    source = load_dataset(default_dataset)
+    pngs = [(source.root / row["rgb"]).read_bytes() for row in source.rows]
+    T_base_flange = np.array([row["T_base_flange"] for row in source.rows])
+    folder = write_folder(tmp_path / "folder", pngs, T_base_flange, PoseConvention())
+    camera = write_opencv_intrinsics(tmp_path / "camera.yaml", source.intrinsics)
+    new_frames = tmp_path / "new_frames"
+    shutil.copytree(default_dataset, new_frames)
+    images, poses = folder / "images", folder / "poses.csv"
+
+    api, cli = tmp_path / "api", tmp_path / "cli"
+    arguments = [str(path) for path in (IMPORT_EXAMPLE, images, poses, camera, new_frames, api)]
+    ran = subprocess.run([sys.executable, *arguments], capture_output=True, text=True, check=False)
+    assert ran.returncode == 0, ran.stderr
+    assert f"imported {len(pngs)} images" in ran.stdout and "verify: " in ran.stdout
+
+    steps = [
+        ["import", "folder", str(images), "--out", str(cli / "dataset"), "--board", "hec_8qr"]
+        + ["--intrinsics", str(camera), "--poses", str(poses), "--quiet"],
+        ["calibrate", str(cli / "dataset"), "--json", str(cli / "calibration.json"), "--no-loo", "--quiet"],
+        ["verify", str(cli / "calibration.json"), str(new_frames), "--json", str(cli / "verify.json")],
+        ["export", str(cli / "calibration.json"), "--to", "ros2-launch", "--assume-zero-offset"]
+        + ["--out", str(cli / "handeye.launch.py")],
+    ]
+    for argv in steps:
+        code, _, stderr = run_hec(argv)
+        assert code in (0, 1), (argv, stderr)  # verify: 1 when it finds the camera moved
+
+    assert (api / "dataset" / "frames.csv").read_bytes() == (cli / "dataset" / "frames.csv").read_bytes()
+    detections = [json.loads((root / "dataset" / "detections.json").read_text()) for root in (api, cli)]
+    for record in detections:  # a hash of dataset.json, which records when and from where it was imported
+        del record["dataset_fingerprint"]
+    assert detections[0] == detections[1]
+    from_api = json.loads((api / "calibration.json").read_text())
+    from_cli = json.loads((cli / "calibration.json").read_text())
+    np.testing.assert_allclose(from_api["T_flange_cam"], from_cli["T_flange_cam"], atol=1e-9)
+    np.testing.assert_allclose(from_api["covariance"], from_cli["covariance"], atol=1e-12)
+
+    import hec
+
+    verified = hec.verify(api / "calibration.json", new_frames)
+    np.testing.assert_allclose(
+        verified.verification.delta, json.loads((cli / "verify.json").read_text())["delta"], atol=1e-9
+    )
+    launch_api = (api / "handeye.launch.py").read_text().replace(str(api), "OUT")
+    launch_cli = (cli / "handeye.launch.py").read_text().replace(str(cli), "OUT")
+    assert launch_api == launch_cli
+
+
+def test_the_apis_refusals_are_typed_and_say_what_the_command_line_says(tmp_path: Path) -> None:
+    """An import without a board, an export whose camera_link -> optical transform is unknown and a
+    plan of 2 views: each raises its typed error, and `hec` prints the same message after
+    `hec: error:` with exit code 2."""
+    import hec
+
+    images = tmp_path / "images"
+    images.mkdir()
+    calibration = tmp_path / "cal.json"
+    record = {"format": "hec-calibration", "version": 1, "method": "ekf", "T_flange_cam": np.eye(4).tolist()}
+    calibration.write_text(json.dumps(record))
+    out = tmp_path / "out"
+    cases = [
+        (
+            lambda: hec.import_dataset("folder", images, out),
+            hec.DatasetImportError,
+            ["import", "folder", str(images), "--out", str(out)],
+        ),
+        (
+            lambda: hec.export(calibration, "urdf"),
+            hec.ExportError,
+            ["export", str(calibration), "--to", "urdf"],
+        ),
+        (
+            lambda: hec.plan(tmp_path / "w.csv", views=2),
+            hec.PlanError,
+            ["plan", "--out", str(tmp_path / "w.csv"), "--views", "2"],
+        ),
+    ]
+    for call, error, argv in cases:
+        with pytest.raises(error) as raised:
+            call()
+        code, stdout, stderr = run_hec(argv)
+        assert (code, stdout, stderr) == (2, "", f"hec: error: {raised.value}\n"), argv
+    assert not out.exists() and not (tmp_path / "w.csv").exists()

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hec.estimator.io.board_file import board_from_dict, board_to_dict, find_board, load_board
 from hec.estimator.targets.aprilgrid import TAG_CORNER_FLOOR_PX, AprilGridBoard, AprilGridDetector, tag_cells
-from hec.estimator.targets.kinds import board_from_dict, detector_for, find_board, load_board
+from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.target import BoardDefinitionError
 from tests.sheet_views import (
     PX_PER_M,
@@ -33,7 +34,7 @@ def board() -> AprilGridBoard:
 
 def test_board_file_reads_back_and_lays_out_kalibrs_grid(board: AprilGridBoard, tmp_path: Path) -> None:
     assert board.kind == "aprilgrid" and board.points_per_marker == 4
-    assert board_from_dict(board.to_dict(), "copy") == board
+    assert board_from_dict(board_to_dict(board), "copy") == board
     assert board.marker_ids == list(range(18))
     # Kalibr: tag 0 at the bottom-left, IDs along x, then up; corners BL, BR, TR, TL.
     c0, c5, c6 = (board.marker_center(i) for i in (0, 5, 6))
@@ -43,7 +44,7 @@ def test_board_file_reads_back_and_lays_out_kalibrs_grid(board: AprilGridBoard, 
     pitch = board.tag_size_m * (1 + board.tag_spacing)
     np.testing.assert_allclose(c5[0] - c0[0], 5 * pitch)
     path = tmp_path / "grid.json"
-    path.write_text(json.dumps(board.to_dict()))
+    path.write_text(json.dumps(board_to_dict(board)))
     assert load_board(path) == board
 
 
@@ -64,7 +65,7 @@ def test_board_file_reads_back_and_lays_out_kalibrs_grid(board: AprilGridBoard, 
 )
 def test_bad_fields_are_named(board: AprilGridBoard, change: dict, message: str) -> None:
     with pytest.raises(BoardDefinitionError, match="grid.json") as error:
-        board_from_dict(board.to_dict() | change, "grid.json")
+        board_from_dict(board_to_dict(board) | change, "grid.json")
     assert message in str(error.value)
 
 
@@ -107,7 +108,7 @@ def test_a_partial_view_gives_the_tags_inside_it(board: AprilGridBoard) -> None:
 
 
 def test_tags_of_another_grid_are_rejected_by_id(board: AprilGridBoard) -> None:
-    other = board_from_dict(board.to_dict() | {"first_id": 100}, "other")
+    other = board_from_dict(board_to_dict(board) | {"first_id": 100}, "other")
     image = warped_view(board, tilted_homography(board))
     detections = AprilGridDetector(other).detect(image)
     assert detections.markers == []
@@ -139,8 +140,8 @@ def test_corner_covariance_matches_the_scatter_of_noisy_fits(board: AprilGridBoa
 @pytest.fixture(scope="module")
 def kalibr_print(board: AprilGridBoard) -> AprilGridBoard:
     """The same grid as Kalibr prints it, with its corner squares."""
-    printed = board_from_dict(board.to_dict() | {"corner_squares": True}, "kalibr")
-    assert isinstance(printed, AprilGridBoard) and printed.to_dict()["corner_squares"] is True
+    printed = board_from_dict(board_to_dict(board) | {"corner_squares": True}, "kalibr")
+    assert isinstance(printed, AprilGridBoard) and board_to_dict(printed)["corner_squares"] is True
     return printed
 
 

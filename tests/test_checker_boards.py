@@ -7,9 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
+from hec.estimator.io.board_file import board_from_dict, board_to_dict, find_board
 from hec.estimator.targets.charuco import CharucoBoard
 from hec.estimator.targets.chessboard import CLASSIC_FLAGS, ChessboardBoard
-from hec.estimator.targets.kinds import board_from_dict, detector_for, find_board
+from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.target import BoardDefinitionError
 from tests.sheet_views import (
     PX_PER_M,
@@ -29,7 +30,7 @@ BOARDS = ("chessboard_10x5", "charuco_10x5")
 def test_board_files_read_back_and_number_corners_as_opencv(name: str) -> None:
     board = find_board(name)
     assert board.points_per_marker == 1 and not board.markers_placed_one_by_one
-    assert board_from_dict(board.to_dict(), "copy") == board
+    assert board_from_dict(board_to_dict(board), "copy") == board
     assert board.marker_ids == list(range(36))  # 9 x 4 inner corners
     # ID 0 at the top-left inner corner, row-major to the right then down (OpenCV's ChArUco IDs).
     first, second, next_row = (board.marker_center(i) for i in (0, 1, 9))
@@ -79,7 +80,7 @@ def test_the_charuco_sheet_is_opencvs_pattern_and_its_corners_opencvs() -> None:
 )
 def test_bad_fields_are_named(name: str, change: dict, message: str) -> None:
     with pytest.raises(BoardDefinitionError, match="board.json") as error:
-        board_from_dict(find_board(name).to_dict() | change, "board.json")
+        board_from_dict(board_to_dict(find_board(name)) | change, "board.json")
     assert message in str(error.value)
 
 
@@ -172,7 +173,7 @@ def test_a_chessboard_file_may_give_inner_corners_and_leave_out_the_sheet() -> N
     assert (board.squares_x, board.squares_y, board.name) == (10, 7, "chessboard_10x7")
     assert board.size_m == pytest.approx((0.26, 0.182))
     assert len(board.marker_ids) == 54
-    assert board_from_dict(board.to_dict(), "copy") == board
+    assert board_from_dict(board_to_dict(board), "copy") == board
     sheet = board_from_dict(header | {"inner_corners": [9, 6], "square_m": 0.026, "size_m": [0.297, 0.21]})
     assert sheet.size_m == (0.297, 0.21)
     # An edge-to-edge sheet given as squares works too.

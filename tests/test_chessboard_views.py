@@ -13,8 +13,9 @@ import pytest
 import hec.sim  # noqa: F401  (selects the GL backend before mujoco loads)
 from hec.bench.targets import board_scenario
 from hec.estimator.geometry.camera import project_points
+from hec.estimator.io.board_file import find_board
 from hec.estimator.observe.grading import true_T_cam_board
-from hec.estimator.targets.kinds import detector_for, find_board
+from hec.estimator.targets.kinds import detector_for
 from hec.sim.simulate import simulate_in_memory
 
 # The grid of chessboard_10x5 on a sheet cut at the grid: no margin at all.

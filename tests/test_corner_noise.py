@@ -14,6 +14,7 @@ from hec.estimator.common.models import models_dir
 from hec.estimator.geometry.camera import CameraIntrinsics, project
 from hec.estimator.geometry.lie import so3_exp
 from hec.estimator.geometry.transforms import make_transform
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.observe.corner_noise import fit_board_views, learn_corner_floor, measured_noise
 from hec.estimator.observe.frames import Dataset
@@ -26,7 +27,6 @@ from hec.estimator.observe.observations import (
     observe_dataset,
     with_pixel_floor,
 )
-from hec.estimator.targets.kinds import find_board
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.qr_fit import center_from_corners
 from tests.conftest import TEST_SEED

@@ -161,7 +161,7 @@ def test_blurred_image_is_called_blurred(dataset) -> None:
 def test_code_fit_covariance_matches_the_scatter_of_repeated_fits() -> None:
     """A marker warped into a synthetic image; fresh noise many times. The predicted
     (noise-only) covariance must match the spread of the fitted corners."""
-    from hec.estimator.targets.kinds import find_board
+    from hec.estimator.io.board_file import find_board
 
     board = find_board("hec_8qr")
     marker_id = board.marker_ids[0]

@@ -34,7 +34,16 @@ def test_the_documentation_site_builds_strictly(tmp_path: Path) -> None:
     assert built.returncode == 0, built.stderr
     assert (tmp_path / "site" / "calibrate" / "index.html").is_file()
     api = (tmp_path / "site" / "api" / "index.html").read_text()
-    for name in ("load_dataset", "detect", "calibrate", "verdict", "findings", "write_report"):
+    functions = (
+        "load_dataset",
+        "detect",
+        "calibrate",
+        "verdict",
+        "findings",
+        "write_report",
+        "save_calibration",
+    )
+    for name in (*functions, "import_dataset", "verify", "export", "plan", "ImportOptions", "ViewPlan"):
         assert f'id="hec.api.{name}"' in api, name  # rendered from the docstrings (mkdocstrings)
 
 

@@ -20,7 +20,7 @@ from hec.estimator.geometry.kinematics import (
     ur_ik_nearest_first,
 )
 from hec.estimator.geometry.transforms import invert, make_transform, pose_error
-from hec.estimator.targets.kinds import load_board
+from hec.estimator.io.board_file import load_board
 from hec.sim.scene import ARM_PREFIX, build_cell
 
 

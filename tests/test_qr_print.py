@@ -14,12 +14,12 @@ import qrcode
 from qrcode.util import MODE_8BIT_BYTE, QRData
 
 from hec.cli import main
+from hec.estimator.io.board_file import board_from_dict, board_to_dict, find_board, load_board
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.observe.frames import Dataset
 from hec.estimator.observe.grading import grade_observations
 from hec.estimator.observe.observations import dataset_depth_noise, observe_dataset, observe_frame
 from hec.estimator.targets.board import BoardDefinition
-from hec.estimator.targets.kinds import find_board, load_board
 from hec.estimator.targets.qr import DetectorSettings, QRDetector
 from hec.estimator.targets.qr_symbol import SymbolSpec, read_format
 from hec.estimator.targets.target import BoardDefinitionError
@@ -29,7 +29,7 @@ from tests.conftest import TEST_SEED
 def _foreign_board_dict() -> dict:
     """hec_8qr's layout with payloads 'Landmark 1'..'Landmark 8' and every mask other than
     the qrcode package's choice."""
-    d = find_board("hec_8qr").to_dict()
+    d = board_to_dict(find_board("hec_8qr"))
     del d["payload_prefix"]
     d["name"] = "foreign-8qr"
     for m in d["markers"]:
@@ -75,7 +75,7 @@ def test_old_board_files_read_and_write_as_before() -> None:
     path = Path(__file__).parents[1] / "models" / "boards" / "hec_8qr.json"
     raw = json.loads(path.read_text())
     board = load_board(path)
-    assert board.to_dict() == {
+    assert board_to_dict(board) == {
         k: v for k, v in raw.items() if k not in ("description", "frame", "corner_order")
     }
     assert board.payload(3) == "HEC1/8QR/03" and board.marker_id_from_payload("HEC1/8QR/03") == 3
@@ -87,7 +87,7 @@ def test_old_board_files_read_and_write_as_before() -> None:
 
 
 def test_a_board_file_maps_any_payload_and_mask() -> None:
-    board = BoardDefinition.from_dict(_foreign_board_dict(), "foreign.json")
+    board = board_from_dict(_foreign_board_dict(), "foreign.json")
     assert board.marker_id_from_payload("Landmark 4") == 3
     assert board.marker_id_from_payload("Landmark 9") is None
     assert board.marker_id_from_payload("HEC1/8QR/03") is None
@@ -98,7 +98,7 @@ def test_a_board_file_maps_any_payload_and_mask() -> None:
         qr.make(fit=False)
         np.testing.assert_array_equal(board.module_matrix(i), np.array(qr.get_matrix(), dtype=bool))
         assert spec.mask != replace(spec, mask=None).pinned().mask
-    assert BoardDefinition.from_dict(board.to_dict()) == board
+    assert board_from_dict(board_to_dict(board)) == board
 
 
 @pytest.mark.parametrize(
@@ -118,7 +118,7 @@ def test_bad_symbol_fields_are_named(change, expected: str) -> None:
     d = _foreign_board_dict()
     change(d)
     with pytest.raises(BoardDefinitionError, match="foreign.json: ") as err:
-        BoardDefinition.from_dict(d, "foreign.json")
+        board_from_dict(d, "foreign.json")
     assert expected in str(err.value)
 
 
@@ -144,7 +144,7 @@ def test_hec_board_writes_the_masks_it_printed(tmp_path: Path, capsys: pytest.Ca
         assert printed.symbol(i) == board.symbol(i).pinned()
         np.testing.assert_array_equal(printed.module_matrix(i), board.module_matrix(i))
     source = tmp_path / "mine.json"
-    source.write_text(json.dumps(board.to_dict()))
+    source.write_text(json.dumps(board_to_dict(board)))
     assert main(["board", "--board", str(source), "--out", str(tmp_path / "mine.pdf")]) == 2
     assert "choose --definition" in capsys.readouterr().err
 

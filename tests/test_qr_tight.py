@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hec.estimator.targets.board import QUIET_ZONE_MODULES, BoardDefinition
-from hec.estimator.targets.kinds import detector_for, find_board
+from hec.estimator.io.board_file import board_from_dict, find_board
+from hec.estimator.targets.board import QUIET_ZONE_MODULES
+from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.qr_fit import fit_marker
 from hec.estimator.targets.target import BoardDefinitionError
 from tests.sheet_views import apply, noisy_copies, sheet_px, tilted_homography, warped_view
@@ -36,7 +37,7 @@ def _row_of_codes(gap_modules: float, edge_modules: float) -> dict:
 
 def test_codes_two_modules_apart_and_from_the_edge_are_a_valid_board() -> None:
     assert QUIET_ZONE_MODULES == 2
-    board = BoardDefinition.from_dict(_row_of_codes(2.0, 2.0), "row.json")
+    board = board_from_dict(_row_of_codes(2.0, 2.0), "row.json")
     assert board.visible_margin_m == pytest.approx(2 * MODULE_M)
     assert find_board("qr_18_tight").marker_ids == list(range(18))
 
@@ -66,7 +67,7 @@ def test_a_layout_the_decoders_cannot_read_names_the_spacing_needed(
     gap_modules: float, edge_modules: float, message: str
 ) -> None:
     with pytest.raises(BoardDefinitionError, match="row.json: ") as err:
-        BoardDefinition.from_dict(_row_of_codes(gap_modules, edge_modules), "row.json")
+        board_from_dict(_row_of_codes(gap_modules, edge_modules), "row.json")
     assert message in str(err.value)
 
 

@@ -29,9 +29,10 @@ import numpy as np
 import pytest
 
 from hec.bench.real_corpus import REAL, calibrate_json, import_set, summary_cells
+from hec.estimator.io.board_file import load_board
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.targets.chessboard import CLASSIC_FLAGS
-from hec.estimator.targets.kinds import detector_for, load_board
+from hec.estimator.targets.kinds import detector_for
 from tests.hec_cli import run_hec
 
 TOLERANCE_MM = 0.01

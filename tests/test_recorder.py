@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.dataset import load_dataset
 from hec.estimator.io.recorder import DatasetRecorder
 from hec.estimator.observe.frames import Capture, DatasetError, Frame
-from hec.estimator.targets.kinds import find_board
 
 INTRINSICS = CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
 

@@ -17,6 +17,7 @@ from scipy.ndimage import map_coordinates
 
 from hec.estimator.geometry.camera import project_points
 from hec.estimator.geometry.transforms import invert
+from hec.estimator.io.board_file import board_to_dict
 from hec.estimator.targets.board import BoardDefinition, board_image
 from hec.sim.cell import SimCell
 from hec.sim.noise import depth_sigma
@@ -198,4 +199,4 @@ def test_a_sheet_texture_is_drawn_once_per_board_definition() -> None:
     moved = replace(board, marker_centers_m={**board.marker_centers_m, 0: (0.0, 0.0)})
     assert not np.array_equal(_sheet_texture(moved), texture)
     solid = _SolidBoard(**{f: getattr(board, f) for f in BoardDefinition.__dataclass_fields__})
-    assert solid.to_dict() == board.to_dict() and not np.array_equal(_sheet_texture(solid), texture)
+    assert board_to_dict(solid) == board_to_dict(board) and not np.array_equal(_sheet_texture(solid), texture)

@@ -38,6 +38,7 @@ FAILED_NAN = (
     "sigma_rotation_deg",
     "nees",
     "time_s",
+    "warnings",
 )
 
 
@@ -89,6 +90,7 @@ def make_rows() -> list[dict]:
                     "sigma_rotation_deg": _rss(result.sigma_rotation_deg),
                     "nees": nees,
                     "time_s": result.diagnostics["time_s"],
+                    "warnings": float(len(result.warnings)),
                 }
                 rows.append(row)
     return rows

@@ -10,10 +10,10 @@ import numpy as np
 
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_quat
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.dataset import DatasetWriter, load_dataset
 from hec.estimator.io.memory import dataset_in_memory
 from hec.estimator.observe.frames import Frame, GroundTruth
-from hec.estimator.targets.kinds import find_board
 from hec.sweep.config import load_config
 from hec.sweep.runner import same_rows
 from hec.sweep.trials import run_trial, tasks_for

@@ -14,7 +14,8 @@ from hec.bench.targets import board_trial
 from hec.cli import main
 from hec.commands.printable import printable_board
 from hec.estimator.common.models import models_dir
-from hec.estimator.targets.kinds import detector_for, find_board, load_board
+from hec.estimator.io.board_file import find_board, load_board
+from hec.estimator.targets.kinds import detector_for
 
 BOARDS = sorted(p.stem for p in (models_dir() / "boards").glob("*.json"))
 

@@ -9,10 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
+from hec.estimator.io.board_file import find_board, load_board
 from hec.estimator.targets.aprilgrid import AprilGridBoard
 from hec.estimator.targets.charuco import CharucoBoard
 from hec.estimator.targets.chessboard import ChessboardBoard
-from hec.estimator.targets.kinds import detector_for, find_board, load_board
+from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.target import BoardDefinitionError
 from tests.sheet_views import PX_PER_M, tilted_homography, warped_view
 

@@ -51,13 +51,15 @@ import numpy as np
 from hec.estimator.common.depth_png import encode_depth
 from hec.estimator.common.files import open_text, write_atomic
 from hec.estimator.common.jsonfile import read_json_object
-from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
+from hec.estimator.common.setups import EYE_TO_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.transforms import transform_from_xyz_quat, xyz_quat_from_transform
+from hec.estimator.io.board_file import board_to_dict, load_board
+from hec.estimator.io.dataset_file import DatasetMeta, GroundTruthFile
 from hec.estimator.io.lock import remove_dead_partials, writers_running
 from hec.estimator.io.png import write_png
+from hec.estimator.io.schema import validated
 from hec.estimator.observe.frames import UR_JOINTS, Dataset, DatasetError, Frame, GroundTruth
-from hec.estimator.targets.kinds import load_board
 from hec.estimator.targets.target import BoardDefinitionError, Target
 
 FORMAT = "hec-dataset"
@@ -183,7 +185,7 @@ class DatasetWriter:
             writer.writerow(frame_columns(UR_JOINTS if self.joint_count is None else self.joint_count))
             writer.writerows(self.rows)
         if self.board is not None:
-            dump_json(self.tmp_dir / "board.json", self.board.to_dict())
+            dump_json(self.tmp_dir / "board.json", board_to_dict(self.board))
         if ground_truth is not None:
             dump_json(self.tmp_dir / "ground_truth.json", ground_truth_dict(ground_truth))
         meta = dataset_json(self.intrinsics, self.depth_scale_m, self.source, len(self.rows), ground_truth)
@@ -304,57 +306,38 @@ def load_dataset(path: str | Path) -> Dataset:
         raise DatasetError(f"{root}: no such dataset folder")
     meta_path = root / "dataset.json"
     meta = read_json_object(meta_path, DatasetError)
-    if meta.get("format") != FORMAT:
-        raise DatasetError(f"{meta_path}: field 'format' should be {FORMAT!r}, got {meta.get('format')!r}")
-    if meta.get("version") != VERSION:
-        raise DatasetError(f"{meta_path}: field 'version' should be {VERSION}, got {meta.get('version')!r}")
-    pose_pairs = bool(meta.get("pose_pairs_file"))
+    fields = validated(DatasetMeta, meta, str(meta_path), DatasetError)
+    intrinsics = None if fields.camera is None else fields.camera.intrinsics()
     try:
-        camera = meta["camera"]
-        intrinsics = None if camera is None and pose_pairs else CameraIntrinsics.from_dict(camera)
-        depth_scale = float(meta["depth_scale_m"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DatasetError(
-            f"{meta_path}: field 'camera' or 'depth_scale_m' missing or malformed ({exc})"
-        ) from None
-    board_file = meta.get("board_file", "board.json")
-    try:
-        board = None if board_file is None and pose_pairs else load_board(root / board_file)
+        board = None if fields.board_file is None else load_board(root / fields.board_file)
     except BoardDefinitionError as exc:
         raise DatasetError(str(exc)) from None
-    rows = read_frames(root / meta.get("frames_file", "frames.csv"))
-    if len(rows) != meta.get("frame_count"):
+    rows = read_frames(root / fields.frames_file)
+    if len(rows) != fields.frame_count:
         raise DatasetError(
-            f"{meta_path}: 'frame_count' is {meta.get('frame_count')} but frames.csv has {len(rows)} rows"
+            f"{meta_path}: 'frame_count' is {fields.frame_count} but frames.csv has {len(rows)} rows"
         )
     truth = None
-    if meta.get("ground_truth_file"):
-        truth = read_ground_truth(root / meta["ground_truth_file"])
-    return Dataset(root, meta, intrinsics, board, depth_scale, rows, truth)
+    if fields.ground_truth_file:
+        truth = read_ground_truth(root / fields.ground_truth_file)
+    return Dataset(root, meta, intrinsics, board, fields.depth_scale_m, rows, truth)
 
 
 def read_ground_truth(path: Path) -> GroundTruth:
-    gt = read_json_object(path, DatasetError)
-    try:
-        if gt.get("setup", EYE_IN_HAND) == EYE_TO_HAND:
-            unknowns = {
-                "T_base_cam": np.array(gt["T_base_cam"]),
-                "T_flange_board": np.array(gt["T_flange_board"]),
-            }
-            mount = board = None
-        else:
-            unknowns, mount, board = {}, np.array(gt["T_flange_cam"]), np.array(gt["T_base_board"])
-        return GroundTruth(
-            mount,
-            board,
-            np.array(gt["T_world_base"]),
-            gt.get("model_errors"),
-            [np.array(f["T_base_flange"]) for f in gt["frames"]],
-            [np.array(f["joints_rad"]) for f in gt["frames"]],
-            **unknowns,
-        )
-    except (KeyError, TypeError) as exc:
-        raise DatasetError(f"{path}: missing field {exc}") from None
+    """The ground truth of a simulated dataset (ground_truth.json); errors name the file and field."""
+    gt = validated(GroundTruthFile, read_json_object(path, DatasetError), str(path), DatasetError)
+    unknowns = {}
+    if gt.setup == EYE_TO_HAND:
+        unknowns = {"T_base_cam": gt.T_base_cam, "T_flange_board": gt.T_flange_board}
+    return GroundTruth(
+        gt.T_flange_cam,
+        gt.T_base_board,
+        gt.T_world_base,
+        gt.model_errors,
+        [f.T_base_flange for f in gt.frames],
+        [np.array(f.joints_rad) for f in gt.frames],
+        **unknowns,
+    )
 
 
 def joint_columns(fieldnames: list[str]) -> tuple[str, ...]:

@@ -14,6 +14,7 @@ import numpy as np
 from hec.estimator.common.files import open_text, write_atomic
 from hec.estimator.common.jsonfile import first_field_difference, read_json_object
 from hec.estimator.geometry.camera import CameraIntrinsics
+from hec.estimator.io.board_file import board_to_dict, load_board
 from hec.estimator.io.dataset import (
     FRAME_COLUMNS,
     SESSION_COLUMNS,
@@ -27,7 +28,6 @@ from hec.estimator.io.dataset import (
 from hec.estimator.io.lock import acquire_lock, release_lock
 from hec.estimator.io.png import write_png
 from hec.estimator.observe.frames import Capture, DatasetError, GroundTruth
-from hec.estimator.targets.kinds import load_board
 from hec.estimator.targets.target import Target
 
 
@@ -84,7 +84,7 @@ class DatasetRecorder:
         acquire_lock(self.root, "a recording")
         for sub in ("rgb", "depth", "depth_samples"):
             (self.root / sub).mkdir()
-        dump_json(self.root / "board.json", self.board.to_dict())
+        dump_json(self.root / "board.json", board_to_dict(self.board))
         with open_text(self.root / "frames.csv", "w") as f:
             csv.writer(f, lineterminator="\n").writerow((*FRAME_COLUMNS, *SESSION_COLUMNS))
         self._write_metadata("in progress")
@@ -103,7 +103,7 @@ class DatasetRecorder:
         now |= {key: self.extra.get(key) for key in self.fixed if key not in unrecorded}
         if (difference := first_field_difference(meta, now)) is not None:
             raise DatasetError(f"{meta_path}: cannot resume, {difference}")
-        if load_board(self.root / "board.json").to_dict() != self.board.to_dict():
+        if board_to_dict(load_board(self.root / "board.json")) != board_to_dict(self.board):
             raise DatasetError(f"{self.root / 'board.json'}: cannot resume, the board is another one")
         frames_path = self.root / "frames.csv"
         text = frames_path.read_text()

@@ -45,6 +45,7 @@ from hec.estimator.solve.filters import initial_covariance
 from hec.estimator.solve.initialise import initial_state
 from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.noise_levels import NoiseLevels, declared_levels, scaled_problem
+from hec.estimator.solve.prior_scale import name_groups, updated_prior_scale
 from hec.estimator.solve.problem import CalibrationProblem
 from hec.estimator.solve.self_calibration import (
     NuisanceUncertainty,
@@ -96,9 +97,10 @@ class LearnedNoise:
     (hec.estimator.solve.self_calibration.NUISANCE_GROUPS), consider_covariance (6, 6) that
     T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
     ratios and chi2_dof, with the adjusted model. mount_covariance: (6, 6) T_flange_cam's covariance at
-    the optimum, theta free. depth: with depths, whether they agree with the pixels
-    (hec.estimator.solve.depth_check); when they do not, everything here is learned from the pixels
-    alone (measured(problem) gives that problem)."""
+    the optimum, theta free. theta_prior_scale: per theta name, its prior's sigma learned from the
+    corrections over the declared one (hec.estimator.solve.prior_scale). depth: with depths, whether
+    they agree with the pixels (hec.estimator.solve.depth_check); when they do not, everything here
+    is learned from the pixels alone (measured(problem) gives that problem)."""
 
     declared: NoiseLevels
     learned: NoiseLevels
@@ -121,6 +123,7 @@ class LearnedNoise:
     chi2_dof_after: float | None = None
     mount_covariance: np.ndarray | None = None
     depth: DepthCheck | None = None
+    theta_prior_scale: np.ndarray | None = None
 
     @property
     def theta_sigma(self) -> np.ndarray | None:
@@ -153,6 +156,9 @@ class LearnedNoise:
             else {
                 "groups_tried": list(self.groups_tried),
                 "groups_kept": list(self.groups_kept),
+                "prior_scale": {
+                    name: float(s) for name, s in zip(self.theta_names, self.theta_prior_scale, strict=True)
+                },
                 "values": {
                     name: {"value": float(v), "sigma": float(s)}
                     for name, v, s in zip(self.theta_names, self.theta, self.theta_sigma, strict=True)
@@ -206,30 +212,35 @@ def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedN
 
 
 def _objective(
-    plain: BatchObjective, levels: NoiseLevels, names: tuple[str, ...]
+    plain: BatchObjective, levels: NoiseLevels, names: tuple[str, ...], prior_scale: np.ndarray | None = None
 ) -> BatchObjective | SelfCalibrationObjective:
     """The batch objective of plain's problem at levels, with the self-calibration of names (none:
-    the plain batch's)."""
+    the plain batch's), their priors widened by prior_scale (hec.estimator.solve.prior_scale)."""
     if not names:
         return plain.at_levels(levels)
 
     def make(p: CalibrationProblem) -> BatchObjective:
         return BatchObjective(p, plain.start, plain.P0, plain.prior)
 
-    return SelfCalibrationObjective(scaled_problem(plain.problem, levels), make, names)
+    objective = SelfCalibrationObjective(scaled_problem(plain.problem, levels), make, names)
+    if prior_scale is not None:
+        objective.sqrt_info = objective.sqrt_info / prior_scale
+    return objective
 
 
 @dataclass
 class _Pass:
     """One variance-component estimation to convergence: the levels, the parameters at the
-    optimum, each group's (squares, redundancy), the iterations run and the problem's stacked frames
-    (at the declared noise, for objectives of the same problem to reuse)."""
+    optimum, each group's (squares, redundancy), the iterations run, the problem's stacked frames
+    (at the declared noise, for objectives of the same problem to reuse) and the self-calibration
+    priors' learned scales (hec.estimator.solve.prior_scale; None without self-calibration)."""
 
     levels: NoiseLevels
     params: np.ndarray
     factors: dict[str, tuple[float, float]]
     iterations: int
     declared: StackedFrames
+    prior_scale: np.ndarray | None = None
 
 
 def _vce(
@@ -240,14 +251,18 @@ def _vce(
     levels: NoiseLevels,
     params: np.ndarray | None,
     names: tuple[str, ...],
+    prior_scale: np.ndarray | None = None,
 ) -> _Pass:
     declared = declared_levels(problem)
     robot_start = levels.robot if problem.robot_noise.is_zero else problem.robot_noise
     iterations = 0
     plain = BatchObjective(problem, start, P0, options.prior)
+    if names:
+        theta_groups = name_groups(problem, names)
+        prior_scale = np.ones(len(names)) if prior_scale is None else prior_scale
     while iterations < MAX_ITERATIONS:
         iterations += 1
-        objective = _objective(plain, levels, names)
+        objective = _objective(plain, levels, names, prior_scale)
         x0 = np.zeros(objective.size) if params is None else params
         optimum = gauss_newton(objective, x0, options.robust, VCE_COST_TOLERANCE)
         params = optimum.params
@@ -265,9 +280,14 @@ def _vce(
         new_levels = _updated(levels, declared, robot_start, factors)
         change = max(abs(_sigma(new_levels, g) / _sigma(levels, g) - 1.0) for g in GROUPS)
         levels = new_levels
+        if names:  # theta's prior rows are the last ones
+            p = len(names)
+            new_scale = updated_prior_scale(prior_scale, theta_groups, r[-p:], 1.0 - hat[-p:])
+            change = max(change, float(np.max(np.abs(new_scale / prior_scale - 1.0))))
+            prior_scale = new_scale
         if change < LEVEL_TOLERANCE:
             break
-    return _Pass(levels, params, factors, iterations, plain.declared)
+    return _Pass(levels, params, factors, iterations, plain.declared, prior_scale if names else None)
 
 
 def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
@@ -325,6 +345,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         ratios_after=ratios_after,
         chi2_dof_after=chi2_dof_after,
         mount_covariance=mount_covariance,
+        theta_prior_scale=final.prior_scale if names else None,
     )
 
 
@@ -384,7 +405,8 @@ def _self_calibrate(
     theta = dict(zip(names, full.params[-len(names) :], strict=True))
     names = group_names(problem, kept)
     x0 = np.concatenate([first.params, [theta[n] for n in names]])
-    final = _vce(problem, options, start, P0, full.levels, x0, names)
+    scale = dict(zip(group_names(problem, groups), full.prior_scale, strict=True))
+    final = _vce(problem, options, start, P0, full.levels, x0, names, np.array([scale[n] for n in names]))
     return final, kept, _nuisance_uncertainty(problem, final, names, start, P0, options)
 
 
@@ -399,7 +421,7 @@ def _nuisance_uncertainty(
     """The covariances at final's optimum (the inverse of the normal matrix; with theta fixed, its
     state block without theta's rows and columns)."""
     plain = BatchObjective(problem, start, P0, options.prior, declared=final.declared)
-    objective = _objective(plain, final.levels, names)
+    objective = _objective(plain, final.levels, names, final.prior_scale)
     _, J = weighted_jacobian(objective, final.params, options.robust)
     N = J.T @ J
     p = len(names)

@@ -14,7 +14,11 @@ update) from the Park solution with a wide prior. When the pairs carry no covari
 easy_handeye2 writes them), the board pose's noise is learned from the residuals as six variance
 components, one per axis of its perturbation (translation along and rotation about the camera's
 and the board's axes: a PnP pose is far less certain along the line of sight), by Foerstner's
-variance component estimation with the redundancies of the fit, and the result says so.
+variance component estimation with the redundancies of the fit, and the result says so. A level
+learned from few pairs is itself uncertain: each of the six has on average n - 2 degrees of
+freedom (6 n residuals, 12 parameters), and the mount's error over a learned sigma follows
+Student's t rather than the normal, whose variance is nu / (nu - 2) times larger; the learned
+covariance is widened by that factor (1.33 for 10 pairs, 1.13 for 20).
 """
 
 from __future__ import annotations
@@ -58,6 +62,15 @@ SCALE_UNRESOLVED = 0.01
 GN_ITERATIONS = 50
 # The filters' prior around the Park solution: wide, it adds no information.
 FILTER_PRIOR_SIGMA = (0.1, 0.5)  # metres, radians
+# Student's t variance factor nu / (nu - 2) is infinite at 2 degrees of freedom: below this many, this one.
+MAX_LEARNED_NOISE_FACTOR = 3.0
+
+
+def learned_noise_factor(pairs: int) -> float:
+    """The variance factor of a mount whose board pose noise was learned from pairs pairs: nu / (nu - 2)
+    with nu = pairs - 2 (module doc), at most MAX_LEARNED_NOISE_FACTOR."""
+    nu = pairs - 2
+    return MAX_LEARNED_NOISE_FACTOR if nu <= 3 else min(nu / (nu - 2), MAX_LEARNED_NOISE_FACTOR)
 
 
 def solve_pose_pairs(
@@ -339,9 +352,12 @@ class PosePairModel:
             return
         mm = " ".join(f"{v:.3f}" for v in 1e3 * levels[:3])
         deg = " ".join(f"{v:.4f}" for v in np.degrees(levels[3:]))
+        factor = learned_noise_factor(len(self.pairs))
+        result.covariance = factor * result.covariance
         result.warnings.append(
             f"the pairs give no covariance for the board pose: its noise was learned from the data, 1 sigma "
-            f"[mm] along the camera's x y z {mm}, [deg] about the board's x y z {deg}"
+            f"[mm] along the camera's x y z {mm}, [deg] about the board's x y z {deg}; the mount's "
+            f"covariance is widened {factor:.2f}x for the levels being learned from {len(self.pairs)} pairs"
         )
 
     def filter(self, X: np.ndarray, B: np.ndarray, iterated: bool) -> Calibration:

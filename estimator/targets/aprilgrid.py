@@ -23,7 +23,7 @@ the QR codes' homography fit), which also gives their covariance.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -32,13 +32,6 @@ from hec.estimator.targets.detection import Detections, MarkerDetection, Rejecti
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.qr_fit import TEMPLATE_QUIET_MODULES, MarkerFitError, fit_marker
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import (
-    BoardDefinitionError,
-    integer_field,
-    positive_field,
-    sheet_fields,
-    sheet_header,
-)
 
 DICTIONARY = "DICT_APRILTAG_36h11"
 CODE_BITS = 6  # a 36h11 tag's code is 6 x 6 cells inside its black border
@@ -65,6 +58,11 @@ _CORNER_OFFSETS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
 @functools.lru_cache(maxsize=1)
 def _dictionary() -> cv2.aruco.Dictionary:
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, DICTIONARY))
+
+
+def tag_family_size() -> int:
+    """How many tags tag36h11 has (IDs 0 to this less one)."""
+    return _dictionary().bytesList.shape[0]
 
 
 @functools.lru_cache(maxsize=4096)
@@ -169,68 +167,6 @@ class AprilGridBoard:
                     x, y = corner[0] - self.gap_m + offset[0], corner[1] + offset[1]
                     blocks.append(CellBlock(square, float(x), float(y), self.gap_m))
         return draw_sheet(self.size_m, blocks, px_per_m, supersample)
-
-    def to_dict(self) -> dict:
-        return (
-            sheet_header(self.kind, self.name, self.size_m)
-            | {
-                "tag_cols": self.tag_cols,
-                "tag_rows": self.tag_rows,
-                "tag_size_m": self.tag_size_m,
-                "tag_spacing": self.tag_spacing,
-                "border_bits": self.border_bits,
-                "first_id": self.first_id,
-            }
-            | ({"corner_squares": True} if self.corner_squares else {})
-        )
-
-    @classmethod
-    def from_dict(cls, d: dict, source: str = "board definition") -> AprilGridBoard:
-        """Validate and build; errors name ``source`` and the field. Without 'size_m' the sheet is the
-        grid and the white around it the corner fit needs; without 'name', aprilgrid_<cols>x<rows>."""
-        cols, rows = d.get("tag_cols"), d.get("tag_rows")
-        given = {"name": f"aprilgrid_{cols}x{rows}", "size_m": [1.0, 1.0]} | d  # size_m: placeholder
-        name, size = sheet_fields(given, source)
-        board = cls(
-            name=name,
-            size_m=size,
-            tag_cols=integer_field(d, "tag_cols", source, least=1),
-            tag_rows=integer_field(d, "tag_rows", source, least=1),
-            tag_size_m=positive_field(d, "tag_size_m", source),
-            tag_spacing=positive_field(d, "tag_spacing", source),
-            border_bits=integer_field(d, "border_bits", source, least=1, default=2),
-            first_id=integer_field(d, "first_id", source, least=0, default=0),
-            corner_squares=_boolean_field(d, "corner_squares", source),
-        )
-        last = board.marker_ids[-1]
-        if last >= _dictionary().bytesList.shape[0]:
-            raise BoardDefinitionError(
-                f"{source}: tags {board.first_id}-{last} do not exist: tag36h11 has IDs 0-"
-                f"{_dictionary().bytesList.shape[0] - 1} (fields 'first_id', 'tag_cols', 'tag_rows')"
-            )
-        width, height = board.grid_size_m
-        margin = board.visible_margin_m
-        if "size_m" not in d:
-            board = replace(board, size_m=(width + 2 * margin, height + 2 * margin))
-        if width + 2 * margin > board.size_m[0] + 1e-12 or height + 2 * margin > board.size_m[1] + 1e-12:
-            raise BoardDefinitionError(
-                f"{source}: the grid ({width * 1e3:.1f} x {height * 1e3:.1f} mm) with {margin * 1e3:.1f} mm "
-                f"of white around it does not fit on the sheet 'size_m' {list(board.size_m)}"
-            )
-        quiet_m = TEMPLATE_QUIET_MODULES * board.feature_m
-        if board.gap_m < quiet_m:
-            raise BoardDefinitionError(
-                f"{source}: 'tag_spacing' {board.tag_spacing} leaves {board.gap_m * 1e3:.1f} mm between "
-                f"tags; the corner fit needs {quiet_m * 1e3:.1f} mm ({TEMPLATE_QUIET_MODULES} cells)"
-            )
-        return board
-
-
-def _boolean_field(d: dict, key: str, source: str) -> bool:
-    value = d.get(key, False)
-    if not isinstance(value, bool):
-        raise BoardDefinitionError(f"{source}: field '{key}' must be true or false, got {value!r}")
-    return value
 
 
 class AprilGridDetector:

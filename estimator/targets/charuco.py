@@ -25,7 +25,6 @@ from hec.estimator.targets import checker
 from hec.estimator.targets.detection import Detections
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_header
 
 # Error per coordinate image noise does not explain at a ChArUco corner, pixels: the RMS on
 # noise-free renders of the default trajectory (charuco_10x5: 17 views, 606 corners).
@@ -35,6 +34,14 @@ CORNER_FLOOR_PX = 0.020
 @functools.lru_cache(maxsize=8)
 def _dictionary(name: str) -> cv2.aruco.Dictionary:
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+def dictionary_size(name: str) -> int | None:
+    """How many markers OpenCV's ArUco dictionary ``name`` ("DICT_5X5_100") has; None when OpenCV
+    has no dictionary of that name."""
+    if not (name.startswith("DICT_") and hasattr(cv2.aruco, name)):
+        return None
+    return _dictionary(name).bytesList.shape[0]
 
 
 @dataclass(frozen=True)
@@ -79,52 +86,6 @@ class CharucoBoard(checker.GridCorners):
         """The sheet as an (H, W) uint8 image (sheet.draw_sheet); the grid as OpenCV's generateImage
         draws it."""
         return draw_sheet(self.size_m, list(self.cell_blocks()), px_per_m, supersample)
-
-    def to_dict(self) -> dict:
-        return sheet_header(self.kind, self.name, self.size_m) | {
-            "squares_x": self.squares_x,
-            "squares_y": self.squares_y,
-            "square_m": self.square_m,
-            "marker_m": self.marker_m,
-            "dictionary": self.dictionary,
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict, source: str = "board definition") -> CharucoBoard:
-        """Validate and build; errors name ``source`` and the field. Without 'size_m' the sheet is the
-        grid and the square of white around it the corner fit needs; without 'name',
-        charuco_<X>x<Y> (squares)."""
-        given = {"name": f"charuco_{d.get('squares_x')}x{d.get('squares_y')}"} | d
-        if "size_m" not in d:
-            square_m = positive_field(d, "square_m", source)
-            width, height = checker.grid_size_m(
-                integer_field(d, "squares_x", source, least=2),
-                integer_field(d, "squares_y", source, least=2),
-                square_m,
-            )
-            given["size_m"] = [width + 2 * square_m, height + 2 * square_m]
-        name, size, squares_x, squares_y, square_m = checker.check_grid(given, source, white_squares_around=1)
-        marker_m = positive_field(d, "marker_m", source)
-        if marker_m >= square_m:
-            raise BoardDefinitionError(
-                f"{source}: field 'marker_m' {marker_m} should be smaller than 'square_m' {square_m}"
-            )
-        dictionary = d.get("dictionary")
-        if not (
-            isinstance(dictionary, str) and dictionary.startswith("DICT_") and hasattr(cv2.aruco, dictionary)
-        ):
-            raise BoardDefinitionError(
-                f"{source}: field 'dictionary' should name an OpenCV ArUco dictionary such as "
-                f"'DICT_5X5_100', got {dictionary!r}"
-            )
-        needed = squares_x * squares_y // 2
-        available = _dictionary(dictionary).bytesList.shape[0]
-        if needed > available:
-            raise BoardDefinitionError(
-                f"{source}: a {squares_x}x{squares_y} board needs {needed} markers; 'dictionary' "
-                f"{dictionary} has {available}"
-            )
-        return cls(name, size, squares_x, squares_y, square_m, marker_m, dictionary)
 
 
 @functools.lru_cache(maxsize=8)

@@ -35,7 +35,6 @@ from hec.estimator.targets.detection import Detections, MarkerDetection, Rejecti
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.qr_fit import UNIT_SQUARE, FitWords, MarkerFitError, TemplateFrame, fit_template
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import BoardDefinitionError, integer_field, positive_field, sheet_fields
 
 # Template pixels per square: the image's, clipped to this range (a template much coarser than the
 # image biases the fit, see qr_fit.fit_marker).
@@ -128,41 +127,6 @@ def squares_block(squares_x: int, squares_y: int, square_m: float) -> CellBlock:
     rows, cols = np.indices((squares_y, squares_x))
     width, height = grid_size_m(squares_x, squares_y, square_m)
     return CellBlock((rows + cols) % 2 == 0, -width / 2, height / 2, square_m)
-
-
-def check_grid(
-    d: dict, source: str, white_squares_around: int = 0
-) -> tuple[str, tuple[float, float], int, int, float]:
-    """name, size_m, squares_x, squares_y, square_m of a board file, validated (errors name source
-    and the field); the grid must fit on the sheet with white_squares_around squares of white
-    around it (a whole-squares corner fit's surround, CornerFitter)."""
-    name, size = sheet_fields(d, source)
-    squares_x = integer_field(d, "squares_x", source, least=2)
-    squares_y = integer_field(d, "squares_y", source, least=2)
-    square_m = positive_field(d, "square_m", source)
-    check_grid_fits(source, size, squares_x, squares_y, square_m, white_squares_around)
-    return name, size, squares_x, squares_y, square_m
-
-
-def check_grid_fits(
-    source: str,
-    size_m: tuple[float, float],
-    squares_x: int,
-    squares_y: int,
-    square_m: float,
-    white_squares_around: int = 0,
-) -> None:
-    """BoardDefinitionError naming source and 'size_m' unless the grid, with white_squares_around
-    squares of white around it, fits on the sheet."""
-    pad = 2 * white_squares_around * square_m
-    width, height = (s + pad for s in grid_size_m(squares_x, squares_y, square_m))
-    if width > size_m[0] + 1e-12 or height > size_m[1] + 1e-12:
-        around = f" with {white_squares_around} square of white around it" if white_squares_around else ""
-        raise BoardDefinitionError(
-            f"{source}: field 'size_m' {list(size_m)}: the {squares_x}x{squares_y} grid of "
-            f"{square_m * 1e3:g} mm squares{around} ({width * 1e3:.0f} x {height * 1e3:.0f} mm) does not "
-            "fit on the sheet"
-        )
 
 
 class CornerFitter:

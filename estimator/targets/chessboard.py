@@ -29,13 +29,6 @@ from hec.estimator.targets import checker
 from hec.estimator.targets.detection import Detections
 from hec.estimator.targets.qr import DetectorSettings
 from hec.estimator.targets.sheet import CellBlock, draw_sheet
-from hec.estimator.targets.target import (
-    BoardDefinitionError,
-    integer_field,
-    positive_field,
-    sheet_fields,
-    sheet_header,
-)
 
 # Error per coordinate image noise does not explain at a chessboard corner, pixels: the RMS on
 # noise-free renders of the default trajectory, its blur kept (noise.rgb.sigma = 0; chessboard_10x5:
@@ -74,60 +67,6 @@ class ChessboardBoard(checker.GridCorners):
     def cell_blocks(self) -> tuple[CellBlock, ...]:
         """What is printed: the black squares."""
         return (checker.squares_block(self.squares_x, self.squares_y, self.square_m),)
-
-    def to_dict(self) -> dict:
-        return sheet_header(self.kind, self.name, self.size_m) | {
-            "squares_x": self.squares_x,
-            "squares_y": self.squares_y,
-            "square_m": self.square_m,
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict, source: str = "board definition") -> ChessboardBoard:
-        """Validate and build; errors name ``source`` and the field."""
-        board = cls(*_grid_fields(d, source))
-        if (board.squares_x + board.squares_y) % 2 == 0:
-            given = (
-                f"field 'inner_corners' {d['inner_corners']} ({board.squares_x}x{board.squares_y} squares)"
-                if "inner_corners" in d
-                else f"fields 'squares_x' {board.squares_x} and 'squares_y' {board.squares_y}"
-            )
-            raise BoardDefinitionError(
-                f"{source}: {given}: one must be odd and the other even, else the board looks the same "
-                "turned by half a turn and its orientation cannot be read from an image"
-            )
-        return board
-
-
-def _grid_fields(d: dict, source: str) -> tuple[str, tuple[float, float], int, int, float]:
-    """name, size_m, squares_x, squares_y, square_m of a chessboard file (module doc), validated;
-    errors name source and the field."""
-    if "inner_corners" not in d:
-        squares = (integer_field(d, "squares_x", source, 2), integer_field(d, "squares_y", source, 2))
-    else:
-        inner = d["inner_corners"]
-        if not (
-            isinstance(inner, list)
-            and len(inner) == 2
-            and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in inner)
-        ):
-            raise BoardDefinitionError(
-                f"{source}: field 'inner_corners' should be [x, y], the inner corners along each side "
-                f"(integers >= 1, one less than the squares), got {inner!r}"
-            )
-        squares = (inner[0] + 1, inner[1] + 1)
-        for key, count in zip(("squares_x", "squares_y"), squares, strict=True):
-            if key in d and d[key] != count:
-                raise BoardDefinitionError(
-                    f"{source}: field '{key}' {d[key]!r} disagrees with 'inner_corners' {inner}: "
-                    f"{count} squares have {count - 1} inner corners"
-                )
-    square_m = positive_field(d, "square_m", source)
-    grid_m = checker.grid_size_m(*squares, square_m)
-    header = {"name": f"chessboard_{squares[0]}x{squares[1]}", "size_m": list(grid_m)} | d
-    name, size = sheet_fields(header, source)
-    checker.check_grid_fits(source, size, *squares, square_m)
-    return name, size, *squares, square_m
 
 
 class ChessboardDetector(checker.GridCornerDetector):

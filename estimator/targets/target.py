@@ -23,43 +23,6 @@ class BoardDefinitionError(ValueError):
     """A board definition file is missing a field or has a bad value."""
 
 
-def sheet_fields(d: dict, source: str) -> tuple[str, tuple[float, float]]:
-    """A board file's 'name' and sheet 'size_m' (width, height), validated; errors name source."""
-    name = d.get("name")
-    if not isinstance(name, str) or not name:
-        raise BoardDefinitionError(f"{source}: field 'name' should be a non-empty string, got {name!r}")
-    size = d.get("size_m")
-    if not (isinstance(size, list) and len(size) == 2 and all(is_number(v) and v > 0 for v in size)):
-        raise BoardDefinitionError(f"{source}: field 'size_m' should be [width, height] > 0, got {size!r}")
-    return name, (float(size[0]), float(size[1]))
-
-
-def sheet_header(kind: str, name: str, size_m: tuple[float, float]) -> dict:
-    """The fields every board file of a kind other than QR starts with (sheet_fields reads them
-    back)."""
-    return {"format": "hec-board", "version": 1, "kind": kind, "name": name, "size_m": list(size_m)}
-
-
-def is_number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-def integer_field(d: dict, key: str, source: str, least: int, default: int | None = None) -> int:
-    """d[key] (default when absent) as an integer >= least; errors name source and the field."""
-    value = d.get(key, default)
-    if not isinstance(value, int) or isinstance(value, bool) or value < least:
-        raise BoardDefinitionError(f"{source}: field '{key}' should be an integer >= {least}, got {value!r}")
-    return value
-
-
-def positive_field(d: dict, key: str, source: str) -> float:
-    """d[key] as a number > 0; errors name source and the field."""
-    value = d.get(key)
-    if not is_number(value) or not value > 0:
-        raise BoardDefinitionError(f"{source}: field '{key}' should be a number > 0, got {value!r}")
-    return float(value)
-
-
 class TargetDetector(Protocol):
     """Finds a target's markers. corner_floor_px, center_floor_px: the error per coordinate image
     noise does not explain that its corner and centre covariances hold (pixels)."""
@@ -128,10 +91,6 @@ class Target(Protocol):
 
     def all_corners(self) -> np.ndarray:
         """(M, P, 3) every marker's points, ordered by marker_ids."""
-        ...
-
-    def to_dict(self) -> dict:
-        """The board file's content (format hec-board version 1)."""
         ...
 
     def pinned(self) -> Target:

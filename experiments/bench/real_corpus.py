@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hec.cli import main as hec_main
+from hec.commands import table as commands
 from hec.support.results_page import markdown_table, write_results_page
 
 REAL = Path(__file__).resolve().parents[2] / "tests" / "data" / "real"
@@ -47,7 +47,7 @@ def run_hec(argv: list[str]) -> tuple[int, str, str]:
     """`hec ARGV` in this process, its output captured: exit code, stdout, stderr."""
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = hec_main(argv)
+        code = commands.run(commands.build_parser(argv).parse_args(argv))
     return code, out.getvalue(), err.getvalue()
 
 

@@ -32,12 +32,12 @@ import hec.sim as sim  # noqa: F401  (selects the GL backend before mujoco loads
 from hec.estimator.common.models import models_dir
 from hec.estimator.geometry.lie import pose_nees
 from hec.estimator.geometry.transforms import pose_error
+from hec.estimator.io.board_file import find_board
 from hec.estimator.io.tomlfile import read_toml
 from hec.estimator.observe.grading import grade_observations
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.methods import solve
 from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
-from hec.estimator.targets.kinds import find_board
 from hec.estimator.targets.qr import DetectorSettings
 from hec.sim.scenario import Scenario, ScenarioError, resolve_scenario_path, scenario_from_dict
 from hec.sim.simulate import simulate_in_memory

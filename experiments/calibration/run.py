@@ -186,3 +186,13 @@ def check_poses_fit(dataset: Dataset, problem: CalibrationProblem) -> None:
         f"the robot poses do not fit the images at any mount ({best_text}; {MAX_CORNER_RMS_PX:.0f} px RMS is "
         f"the most any model explains); {why}"
     )
+
+
+def without_depth(observations: list[FrameObservations]) -> list[FrameObservations]:
+    """Copies of the observations with every marker's depth removed (--no-depth), so that methods
+    which read depth from the raw observations (seed-ekf) see none either."""
+    gone = {"depth_m": None, "depth_cov": None, "points_cam": None, "points_cov": None}
+    return [
+        replace(o, markers=[replace(m, **gone, depth_note="depth not used (--no-depth)") for m in o.markers])
+        for o in observations
+    ]

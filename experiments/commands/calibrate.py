@@ -5,11 +5,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from hec.calibration.calibration_json import (
+    CalibrationContext,
+    calibration_context,
+    frame_notes,
+    robot_noise_source,
+)
 from hec.calibration.comparison import format_comparison
 from hec.calibration.loo import (
     BUDGET_S,
@@ -23,14 +29,12 @@ from hec.calibration.report import (
     result_to_dict,
     write_json,
 )
-from hec.calibration.run import check_poses_fit, run_methods
+from hec.calibration.run import check_poses_fit, run_methods, without_depth
 from hec.calibration.summary import format_summary
 from hec.estimator.common.files import refuse_writing_over_inputs
 from hec.estimator.common.jsonfile import read_json_object
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.io.calibration_file import (
-    CALIBRATION_FORMAT,
-    CALIBRATION_VERSION,
     covariance_field,
     pose_field,
 )
@@ -111,7 +115,7 @@ def robot_noise(
 ) -> tuple[RobotPoseNoise, str]:
     """The dataset's robot pose noise with the command-line overrides, and where it came from."""
     base = dataset_robot_noise(dataset)
-    source = "dataset.json" if "robot_pose_noise" in dataset.metadata else "default: dataset.json has none"
+    source = robot_noise_source(dataset)
     if sigma_mm is None and sigma_deg is None:
         return base, source
     noise = RobotPoseNoise(
@@ -128,36 +132,7 @@ def method_options(settings: CalibrateSettings) -> MethodOptions:
     )
 
 
-def without_depth(observations: list[FrameObservations]) -> list[FrameObservations]:
-    """Copies of the observations with every marker's depth removed (--no-depth), so that methods
-    which read depth from the raw observations (seed-ekf) see none either."""
-    gone = {"depth_m": None, "depth_cov": None, "points_cam": None, "points_cov": None}
-    return [
-        replace(o, markers=[replace(m, **gone, depth_note="depth not used (--no-depth)") for m in o.markers])
-        for o in observations
-    ]
-
-
 # ---------------------------------------------------------------- the command
-
-
-def _context(
-    dataset: Dataset, problem: CalibrationProblem, settings: CalibrateSettings, noise_source: str
-) -> dict:
-    return {
-        "format": CALIBRATION_FORMAT,
-        "version": CALIBRATION_VERSION,
-        "dataset": str(dataset.root),
-        "pose_frame": dataset.metadata.get("pose_frame", "flange"),
-        "frames_used": len(problem.frames),
-        "frames_left_out": list(problem.rejected),
-        "use_depth": settings.use_depth,
-        "map_model": settings.map_model,
-        "estimate_depth_scale": settings.estimate_depth_scale,
-        "prior_file": None if settings.prior_file is None else str(settings.prior_file),
-        "leave_one_frame_out_settings": {"enabled": settings.loo, "budget_s": settings.loo_budget_s},
-        "robot_pose_noise": problem.robot_noise.to_dict() | {"source": noise_source},
-    }
 
 
 def _print_header(
@@ -185,19 +160,6 @@ def _print_header(
         print(f"  left out: {line}")
     for line in frame_notes(observations):
         print(f"  warning: {line}")
-
-
-def frame_notes(observations: list[FrameObservations]) -> list[str]:
-    """What the detection said of frames it kept (a depth image not aligned to the colour image,
-    without valid pixels), one line per note with the frames it was said of."""
-    frames: dict[str, list[int]] = {}
-    for o in observations:
-        for note in o.notes:
-            frames.setdefault(note, []).append(o.frame)
-    return [
-        f"frame {said[0]}: {note}" if len(said) == 1 else f"frames {', '.join(map(str, said))}: {note}"
-        for note, said in frames.items()
-    ]
 
 
 def _note_ignored_options(settings: CalibrateSettings) -> None:
@@ -271,7 +233,16 @@ def calibrate_dataset(
     for line in convention_lines(dataset, problem, results):
         print(line)
     if json_out is not None:
-        data = _context(dataset, problem, settings, noise_source) | {"frame_notes": frame_notes(observations)}
+        context = CalibrationContext(
+            noise_source,
+            settings.use_depth,
+            settings.map_model,
+            settings.estimate_depth_scale,
+            settings.prior_file,
+            settings.loo,
+            settings.loo_budget_s,
+        )
+        data = calibration_context(dataset, problem, context) | {"frame_notes": frame_notes(observations)}
         if settings.method == ALL_METHODS:
             data["results"] = [result_to_dict(r, T_true) for r in results]
         else:

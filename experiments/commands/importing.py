@@ -1,42 +1,45 @@
-"""`hec import LAYOUT SOURCE --out DIR`: a hec dataset from another tool's layout
-(hec.estimator.io.layouts): an image folder with a pose file, ViSP's hand-eye folder, or an
-easy_handeye2 .samples file of pose pairs. Image imports are detected at once (the observations
-cached as `hec detect` would) and the robot poses' convention is checked: if a common mistake fits
-the data much better than the stated convention, hec says which and the option that selects it. The
-board file's layout is checked against the images (a mirrored one is named) and imported joints
-against the robot poses (joints in the ROS driver's order, or poses in other base or tool frames
-than the joints' kinematics, are named)."""
+"""`hec import LAYOUT SOURCE --out DIR`: a hec dataset from another tool's layout. The work is
+hec.import_dataset (hec.calibration.importing, whose doc says what is checked); this parses the
+options and prints what it did."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-import cv2
-import numpy as np
-
+from hec.calibration.importing import LAYOUTS, ImportOptions, import_dataset
 from hec.commands import arguments
 from hec.commands.verbs import HELP
-from hec.estimator.common.files import refuse_writing_over_inputs
 from hec.estimator.common.setups import EYE_IN_HAND, SETUPS
-from hec.estimator.geometry.camera import CameraIntrinsics
-from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS, arm_dict
-from hec.estimator.geometry.transforms import invert
-from hec.estimator.io.arm_file import ArmFileError, read_arm
-from hec.estimator.io.convention_check import TRACKING_DIRECTIONS, check_pose_pair_directions
-from hec.estimator.io.dataset import load_dataset
-from hec.estimator.io.intrinsics_file import IntrinsicsFileError, read_intrinsics
-from hec.estimator.io.layouts import JointFile, LayoutError, read_easy_handeye_samples, read_folder, read_visp
-from hec.estimator.io.pairing import PAIR_BY, TIME_UNITS, PairingError
-from hec.estimator.io.pose_file import DIRECTIONS, ROTATIONS, PoseConvention, PoseFileError
-from hec.estimator.io.pose_table import IMAGE_SUFFIXES
-from hec.estimator.observe.depth import DEPTH_CAMERAS, DepthNoiseModel
-from hec.estimator.observe.frames import Dataset
-from hec.estimator.observe.pose_pairs import PosePair
-from hec.estimator.targets.kinds import find_board
+from hec.estimator.geometry.kinematics import ARMS, JOINT_ORDERS
+from hec.estimator.io.convention_check import TRACKING_DIRECTIONS
+from hec.estimator.io.pairing import PAIR_BY, TIME_UNITS
+from hec.estimator.io.pose_file import DIRECTIONS, ROTATIONS
+from hec.estimator.observe.depth import DEPTH_CAMERAS
 
-LAYOUTS = ("folder", "visp", "easy_handeye2")
-IMPORT_ERRORS = (LayoutError, PoseFileError, PairingError, IntrinsicsFileError, ArmFileError)
+OPTION_NAMES = (
+    "board",
+    "setup",
+    "intrinsics",
+    "camera",
+    "poses",
+    "pair_by",
+    "time_tolerance",
+    "image_time_unit",
+    "rotation",
+    "angle_unit",
+    "length_unit",
+    "pose_direction",
+    "tracking_direction",
+    "joints",
+    "joint_unit",
+    "joint_order",
+    "depth",
+    "depth_scale",
+    "depth_camera",
+    "depth_noise",
+    "robot_model",
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -141,229 +144,31 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Import, then (image layouts) detect and check the pose convention; prints what it did."""
-    from hec.estimator.io.importer import import_images, import_pose_pairs, provenance
-
-    inputs = {"source": args.source, "pose file": args.poses, "depth folder": args.depth}
-    inputs |= {"joint file": args.joints, "intrinsics file": args.intrinsics}
-    refuse_writing_over_inputs(args.out, inputs)
-    try:
-        if args.layout == "easy_handeye2":
-            if args.setup != EYE_IN_HAND:
-                raise ValueError(
-                    "--setup eye-to-hand is for image imports: hec calibrates pose pairs eye-in-hand only"
-                )
-            pairs = _directed(read_easy_handeye_samples(args.source), args)
-            board = find_board(args.board) if args.board else None
-            intrinsics = _intrinsics(args, required=False)
-            check = None
-            if not args.no_check:
-                check = check_pose_pair_directions(pairs, args.pose_direction, args.tracking_direction)
-                if check.mistake:
-                    raise ValueError(
-                        f"{args.source}: {check.message}; nothing written (--no-check imports them as stated)"
-                    )
-            out = import_pose_pairs(
-                pairs, args.out, provenance(args.layout, [args.source]), board, intrinsics, args.force
-            )
-            print(f"imported {len(pairs)} pose pairs (robot T_base_flange, tracking T_cam_board) into {out}")
-            print("observations: pose_pairs.json (imported; nothing regenerates them)")
-            if check is not None:
-                print(f"convention check: {check.message}")
-            return 0
-        if args.board is None:
-            raise ValueError("--board is needed to import images: the board name or file they show")
-        board = find_board(args.board)
-        intrinsics = _intrinsics(args, required=True)
-        arm = None if args.robot_model is None else read_arm(args.robot_model)
-        if args.layout == "folder":
-            if args.poses is None and (args.joints is None or arm is None):
-                raise ValueError(
-                    "the folder layout needs --poses, or --joints with --robot-model to compute the "
-                    "flange poses from the joints"
-                )
-            joint_file = (
-                None if args.joints is None else JointFile(args.joints, args.joint_unit, args.joint_order)
-            )
-            frames = read_folder(
-                args.source,
-                args.poses,
-                _convention(args),
-                args.depth,
-                joint_file,
-                args.pair_by,
-                args.time_tolerance,
-                args.image_time_unit,
-                arm,
-            )
-            sources = [p for p in (args.source, args.poses, args.depth, args.joints) if p]
-        else:
-            if args.joints is not None or args.pair_by is not None:
-                raise ValueError(
-                    "--joints and --pair-by are for the folder layout (ViSP's pairs each image with the "
-                    "pose file of its number, and has no joints)"
-                )
-            joint_file, frames = None, read_visp(args.source)
-            sources = [args.source]
-        extra = {} if arm is None else {"robot_model": arm.name}
-        if args.setup != EYE_IN_HAND:
-            extra["setup"] = args.setup
-        depth_noise = _depth_noise(args)
-        if depth_noise is not None:
-            extra["depth_noise"] = depth_noise.to_dict()
-        if arm is not None and ARMS.get(arm.name) != arm:
-            extra["robot_dh"] = arm_dict(arm)
-        checks: list[str] = []
-
-        def check(folder: Path) -> None:  # on the complete dataset before it is moved into place
-            checks.extend(check_import(folder, args.quiet, args.out))
-
-        out = import_images(
-            frames,
-            args.out,
-            board,
-            intrinsics,
-            args.depth_scale,
-            provenance(args.layout, sources, frames, joint_file),
-            extra,
-            args.force,
-            None if args.no_check else check,
+    values = {name: getattr(args, name) for name in OPTION_NAMES}
+    for name in ("camera", "depth_noise"):
+        values[name] = None if values[name] is None else tuple(values[name])
+    options = ImportOptions(**values, check=not args.no_check)
+    result = import_dataset(args.layout, args.source, args.out, options, args.force, args.quiet)
+    if result.pose_pairs is not None:
+        print(
+            f"imported {result.pose_pairs} pose pairs (robot T_base_flange, tracking T_cam_board) into "
+            f"{result.path}"
         )
-    except IMPORT_ERRORS as exc:
-        raise ValueError(str(exc)) from None
-    print(frames.pairing.describe())
-    for note in frames.notes:
-        print(f"note: {note}")
-    depth = sum(bool(row["depth"]) for row in load_dataset(out).rows)
-    empty = sum(d is not None for d in frames.depths) - depth
-    if empty:
-        print(f"note: {empty} depth images hold no depth (every pixel 0): those frames are imported without")
-    joints = "" if frames.joints is None else f", {frames.joints.shape[1]} joints each,"
-    poses = (
-        f"flange poses computed from the joints with {arm.name}'s kinematics"
-        if args.layout == "folder" and args.poses is None
-        else f"robot poses read as {_describe(frames.convention)}"
-    )
-    print(f"imported {len(frames.images)} images ({depth} with depth){joints} with {poses} into {out}")
-    for line in checks:
+        print("observations: pose_pairs.json (imported; nothing regenerates them)")
+    else:
+        print(result.pairing)
+        for note in result.notes:
+            print(f"note: {note}")
+        if result.empty_depth:
+            print(
+                f"note: {result.empty_depth} depth images hold no depth (every pixel 0): those frames are "
+                "imported without"
+            )
+        joints = "" if result.joints is None else f", {result.joints} joints each,"
+        print(
+            f"imported {result.images} images ({result.with_depth} with depth){joints} with {result.poses} "
+            f"into {result.path}"
+        )
+    for line in result.checks:
         print(line)
     return 0
-
-
-def _directed(pairs: list[PosePair], args: argparse.Namespace) -> list[PosePair]:
-    """The samples read in the directions the options state: T_base_flange and T_cam_board."""
-    robot = args.pose_direction == "flange-to-base"
-    tracking = args.tracking_direction == "target-to-camera"
-    return [
-        PosePair(
-            p.frame,
-            invert(p.T_base_flange) if robot else p.T_base_flange,
-            invert(p.T_cam_board) if tracking else p.T_cam_board,
-        )
-        for p in pairs
-    ]
-
-
-def _depth_noise(args: argparse.Namespace) -> DepthNoiseModel | None:
-    """The depth noise the options name, or None (the D435's, which datasets default to)."""
-    if args.depth_camera is not None and args.depth_noise is not None:
-        raise ValueError("give --depth-camera or --depth-noise, not both")
-    if (args.depth_camera or args.depth_noise) and args.depth is None:
-        raise ValueError("--depth-camera and --depth-noise describe the depth images: give --depth DIR too")
-    if args.depth_noise is not None:
-        subpixel, baseline_m, focal_px = args.depth_noise
-        try:
-            return DepthNoiseModel(subpixel, baseline_m, focal_px)
-        except ValueError as exc:
-            raise ValueError(f"--depth-noise: {exc}") from None
-    return None if args.depth_camera is None else DEPTH_CAMERAS[args.depth_camera]
-
-
-def _convention(args: argparse.Namespace) -> PoseConvention:
-    return PoseConvention(args.rotation, args.angle_unit, args.length_unit, args.pose_direction)
-
-
-def _describe(convention: PoseConvention) -> str:
-    c = convention
-    angles = "" if c.rotation.startswith("quat") or c.rotation == "matrix" else f" in {c.angle_unit}"
-    return f"{c.rotation}{angles}, {c.length_unit}, {c.direction}"
-
-
-def _intrinsics(args: argparse.Namespace, required: bool) -> CameraIntrinsics | None:
-    if args.intrinsics is not None and args.camera is not None:
-        raise ValueError("give --intrinsics or --camera, not both")
-    if args.intrinsics is not None:
-        return read_intrinsics(args.intrinsics, _first_image_size(args.source))
-    if args.camera is not None:
-        fx, fy, cx, cy, width, height = args.camera
-        if width != int(width) or height != int(height):
-            raise ValueError(f"--camera: WIDTH and HEIGHT are whole pixels, got {width:g} {height:g}")
-        try:
-            return CameraIntrinsics(int(width), int(height), fx, fy, cx, cy)
-        except ValueError as exc:
-            raise ValueError(f"--camera: {exc}") from None
-    if required:
-        raise ValueError("the camera is needed to import images: give --intrinsics FILE or --camera")
-    return None
-
-
-def _first_image_size(folder: Path) -> tuple[int, int] | None:
-    """(width, height) of the first image in folder, for an intrinsics file that gives no size."""
-    if not folder.is_dir():
-        return None
-    for path in sorted(folder.iterdir()):
-        if path.suffix.lower() in IMAGE_SUFFIXES:
-            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if image is not None:
-                return image.shape[1], image.shape[0]
-    return None
-
-
-def check_import(dataset_path: Path, quiet: bool = False, shown_as: Path | None = None) -> list[str]:
-    """Detect an imported image dataset (cached as `hec detect` does) and check its pose convention,
-    its board file and its joints (if any): the lines to print. shown_as: the folder the dataset
-    will be at, for the lines (the check runs before it is moved there)."""
-    from hec.estimator.io.convention_check import check_board_layout, check_pose_convention
-    from hec.estimator.solve.problem import build_problem, dataset_robot_noise, dataset_setup
-    from hec.estimator.targets.qr import DetectorSettings
-    from hec.support.detection import detect_and_cache
-
-    dataset = load_dataset(dataset_path)
-    observations, cache, _ = detect_and_cache(dataset, DetectorSettings(), quiet)
-    found = sum(o.problem is None for o in observations)
-    points = sum(len(m.corners_px) for o in observations for m in o.markers)
-    lines = [
-        f"detected the board in {found} of {len(observations)} frames ({points} points); cached in "
-        f"{(shown_as or dataset_path) / cache.name}"
-    ]
-    record = dataset.metadata["provenance"]
-    stated = PoseConvention(**record["pose_convention"])
-    problem = build_problem(
-        observations,
-        dataset.board,
-        dataset.intrinsics,
-        dataset_robot_noise(dataset),
-        setup=dataset_setup(dataset),
-    )
-    report = check_pose_convention(problem, record["pose_values"], stated)
-    lines.append(f"convention check: {report.message}")
-    lines.append(f"board check: {check_board_layout(problem)}")
-    if "joints" in record:
-        lines += _joint_check(dataset)
-    return lines
-
-
-def _joint_check(dataset: Dataset) -> list[str]:
-    """The joint-order check of an imported dataset with joints (or why it cannot run) and, when the
-    poses are the joints' kinematics in other base or tool frames, which."""
-    from hec.estimator.io.joint_check import check_joint_frames, check_joint_order
-    from hec.estimator.solve.problem import dataset_arm
-
-    arm = dataset_arm(dataset)
-    if arm is None:
-        return ["joint check: not run: it needs a UR arm's six joints per image and --robot-model"]
-    T_base_flange = np.array([row["T_base_flange"] for row in dataset.rows])
-    joints = np.array([arm.joints[i] for i in range(len(dataset.rows))])
-    order = dataset.metadata["provenance"]["joints"]["order"]
-    lines = [f"joint check: {check_joint_order(T_base_flange, joints, arm.kinematics, order)}"]
-    frames = check_joint_frames(T_base_flange, joints, arm.kinematics)
-    return lines + ([f"frame check: {frames}"] if frames else [])

@@ -11,7 +11,7 @@ import numpy as np
 from PIL import Image
 
 from hec.estimator.common.files import write_atomic
-from hec.estimator.targets.kinds import find_board, save_board
+from hec.estimator.io.board_file import find_board, save_board
 from hec.estimator.targets.target import Target
 
 SCALE_BAR_M = 0.1

@@ -273,7 +273,7 @@ def _record_sim_adaptive(
 ) -> int:
     """The adaptive session on the simulated cell, its pool POOL_CANDIDATES candidate views drawn
     around the scenario's nominal values (from the session's seed)."""
-    from hec.commands.plan import scenario_candidates
+    from hec.session.view_plan import scenario_candidates
 
     seed = extra["simulation"]["seed"]
     pool = scenario_candidates(
@@ -292,7 +292,7 @@ def _record_sim_adaptive(
 def _record_hardware(
     args: argparse.Namespace, camera_context: object | None, read_line: Callable[[str], str] | None
 ) -> int:
-    from hec.estimator.targets.kinds import find_board
+    from hec.estimator.io.board_file import find_board
     from hec.hardware.cell import HardwareCell, plan_moves
     from hec.hardware.realsense import RealSenseCamera
 

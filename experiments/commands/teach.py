@@ -21,7 +21,8 @@ import numpy as np
 
 from hec.commands.verbs import HELP
 from hec.estimator.geometry.waypoints import JOINT_COLUMNS, WaypointFileError
-from hec.estimator.targets.kinds import detector_for, find_board
+from hec.estimator.io.board_file import find_board
+from hec.estimator.targets.kinds import detector_for
 from hec.estimator.targets.target import BoardDefinitionError, TargetDetector
 from hec.hardware.ur_robot import RobotError, URRobot
 from hec.session.cell_config import CellConfigError, load_cell_config

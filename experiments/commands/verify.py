@@ -12,7 +12,7 @@ import numpy as np
 
 from hec.commands.verbs import HELP
 from hec.estimator.common.setups import EYE_IN_HAND, EYE_TO_HAND
-from hec.estimator.io.calibration_file import CalibrationFile, CalibrationFileError, read_calibration
+from hec.estimator.io.calibration_file import CalibrationFile
 
 if TYPE_CHECKING:
     from hec.estimator.solve.verify import Verification
@@ -71,67 +71,38 @@ def format_verification(v: Verification, setup: str = EYE_IN_HAND) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """`hec verify`: the report; 0 consistent, 1 moved, 2 when the calibration has no covariance."""
+    """`hec verify`: hec.verify (hec.calibration.verification) and its report; 0 consistent,
+    1 moved, 2 when the calibration has no covariance."""
     from hec.calibration.report import check_json_path, write_json
+    from hec.calibration.verification import untested_message, verify_calibration
     from hec.estimator.common.files import refuse_writing_over_inputs
-    from hec.estimator.io.dataset import dataset_inputs, load_dataset
-    from hec.estimator.solve.problem import dataset_problem, dataset_setup
-    from hec.estimator.solve.verify import format_verdict, verification_problem, verify_mount
-    from hec.support.detection import cached_or_detected
+    from hec.estimator.io.dataset import dataset_inputs
 
     if args.json is not None:
         check_json_path(args.json)
         inputs = {"calibration file": args.calibration} | dataset_inputs(args.dataset)
         refuse_writing_over_inputs(args.json, inputs, "--json")
-    cal = read_calibration(args.calibration, args.method)
-    dataset = load_dataset(args.dataset)
-    pose_frame = dataset.metadata.get("pose_frame", "flange")
-    if pose_frame != cal.pose_frame:
-        raise CalibrationFileError(
-            f"{args.calibration}: calibrated with the robot's {cal.pose_frame} poses, but {args.dataset} "
-            f"records {pose_frame} poses"
-        )
-    setup = dataset_setup(dataset)
-    if setup != cal.setup:
-        raise CalibrationFileError(
-            f"{args.calibration}: an {cal.setup} calibration, but {args.dataset} records an {setup} cell"
-        )
-    observations, source = cached_or_detected(dataset, args.quiet)
-    if not cal.use_depth:
-        from hec.commands.calibrate import without_depth
-
-        observations = without_depth(observations)
-    problem = dataset_problem(dataset, observations, use_depth=cal.use_depth)
-    v = verify_mount(
-        verification_problem(problem, cal.noise), cal.T_flange_cam, cal.covariance, cal.depth_scale
-    )
+    result = verify_calibration(args.calibration, args.dataset, args.method, args.quiet)
+    cal, v = result.calibration, result.verification
     covariance = "given" if cal.covariance is not None else "none"
     print(f"calibration: {cal.path} ({cal.method}, covariance {covariance})")
     print(
-        f"verification: {dataset.root} ({len(problem.frames)} frames, {problem.observation_count} marker "
-        f"observations; observations {source})"
+        f"verification: {result.dataset} ({result.frames} frames, {result.observation_count} marker "
+        f"observations; observations {result.observations_source})"
     )
-    for line in problem.rejected:
+    for line in result.rejected:
         print(f"  left out: {line}")
     print(_noise_line(cal))
     print("\n".join(format_verification(v, cal.setup)))
-    if dataset.ground_truth is not None:
-        from hec.estimator.geometry.transforms import pose_error
-
-        dt, dr = pose_error(cal.T_flange_cam, dataset.ground_truth.hand_eye)
+    if result.error_vs_truth is not None:
+        dt, dr = result.error_vs_truth
         print(
             f"vs ground truth: the verification cell's true {cal.hand_eye_name} is {1e3 * dt:.3f} mm and "
             f"{np.degrees(dr):.4f} deg from the calibration"
         )
     if args.json is not None:
-        data = {"calibration": str(cal.path), "method": cal.method, "dataset": str(dataset.root)}
-        print(f"wrote {write_json(args.json, data | v.to_dict() | {'verdict': format_verdict(v)})}")
+        print(f"wrote {write_json(args.json, result.to_dict())}")
     if v.moved is None:
-        print(
-            f"hec: error: {cal.path}: field 'covariance' is null ({cal.method} gives no uncertainty): "
-            "cannot tell a moved camera from the calibration's own error; calibrate with a method that "
-            "reports a covariance (ekf, iekf, ukf, batch, seed-ekf)",
-            file=sys.stderr,
-        )
+        print(f"hec: error: {untested_message(cal)}", file=sys.stderr)
         return EXIT_UNTESTED
     return EXIT_MOVED if v.moved else 0

@@ -3,7 +3,7 @@ chosen from a pool of candidate waypoints by the information it adds at the runn
 session stops once the running estimate's RSS 1-sigma reaches the target.
 
 The pool: in simulation, candidate views drawn around the scenario's nominal mount and board pose
-(hec.commands.plan.scenario_candidates); with --waypoints, the file's waypoints (on the real cell: a
+(hec.session.view_plan.scenario_candidates); with --waypoints, the file's waypoints (on the real cell: a
 taught pool; hec picks the order and stops early).
 
 The choice (AdaptiveViews): one greedy D-optimal step of hec.estimator.solve.view_planning.plan_views, the

@@ -16,8 +16,11 @@ TEXT_FILE = "error_budget.txt"
 
 
 def has_budget(summaries: list[CellSummary]) -> bool:
-    """True when the sweep varied error_sources (one value per cell)."""
-    return len({s.parameters.get(PARAMETER) for s in summaries if PARAMETER in s.parameters}) > 1
+    """True when the sweep varied error_sources, one cell per value (a sweep that also scales the
+    errors has several cells of one source: no budget)."""
+    source = {s.cell: s.parameters[PARAMETER] for s in summaries if PARAMETER in s.parameters}
+    values = set(source.values())
+    return len(values) > 1 and len(values) == len(source)
 
 
 def _by_source(summaries: list[CellSummary]) -> tuple[list[str], list[str], dict]:

@@ -34,14 +34,17 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from hec.estimator.io.tomlfile import read_toml
+from pydantic import Field, StrictStr, model_validator
+
+from hec.estimator.io.schema import validated
+from hec.estimator.io.tomlfile import Section, read_toml
 from hec.estimator.targets.target import BoardDefinitionError
-from hec.sim.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
+from hec.sim.model_errors import scaled_depth_bias, scaled_model_errors
+from hec.sim.scenario import ModelErrors, Scenario, ScenarioError, load_scenario, scenario_from_dict
 from hec.sweep.parameters import (
     ERROR_SOURCES,
-    FIDELITIES,
     FULL_VIEWS,
     MEASUREMENTS,
     PARAMETERS,
@@ -50,8 +53,6 @@ from hec.sweep.parameters import (
     error_sources_name,
     parameter_columns,
 )
-
-TOP_LEVEL_KEYS = ("fidelity", "seed", "paired", "trials", "methods", "scenario", "fixed", "levels", "grid")
 
 
 class SweepConfigError(ValueError):
@@ -77,6 +78,7 @@ def scenario_defaults(scenario: Scenario) -> dict[str, Any]:
         "error_sources": error_sources_name(
             tuple(n for n in ERROR_SOURCES if getattr(scenario.errors, n).enabled)
         ),
+        "error_scale": 1.0,
         "mount": "fixed",
         "setup": scenario.setup,
         "board": scenario.board.definition,
@@ -89,12 +91,11 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
     data = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
     noise = {k: dict(v) for k, v in data.get("noise", {}).items()}
     noise["depth"] = {**noise.get("depth", {}), "enabled": True, "subpixel": params["depth_subpixel"]}
-    scale, offset = params["depth_bias_scale"], params["depth_bias_offset_mm"]
-    noise["depth_bias"] = {
-        "enabled": scale != 1.0 or offset != 0.0,
-        "scale": scale,
-        "offset_m": 1e-3 * offset,
-    }
+    error_scale = params.get("error_scale", 1.0)
+    scale, offset_m = scaled_depth_bias(
+        params["depth_bias_scale"], 1e-3 * params["depth_bias_offset_mm"], error_scale
+    )
+    noise["depth_bias"] = {"enabled": scale != 1.0 or offset_m != 0.0, "scale": scale, "offset_m": offset_m}
     noise["robot_pose"] = {
         "enabled": True,
         "translation_sigma_m": 1e-3 * params["robot_translation_sigma_mm"],
@@ -112,6 +113,9 @@ def cell_scenario(base: dict, base_dir: str, params: dict[str, Any], source: str
         on = error_source_set(params["error_sources"])
         errors = {k: dict(v) for k, v in data.get("errors", {}).items()}
         data["errors"] = {n: {**errors.get(n, {}), "enabled": n in on} for n in ERROR_SOURCES}
+    if error_scale != 1.0:
+        errors = scaled_model_errors(ModelErrors.model_validate(data.get("errors", {})), error_scale)
+        data["errors"] = errors.model_dump(mode="json")
     return scenario_from_dict(data, source=source, base_dir=Path(base_dir))
 
 
@@ -170,109 +174,104 @@ def _error(path: Path, key: str, message: str) -> SweepConfigError:
     return SweepConfigError(f"{path}: key '{key}': {message}")
 
 
-def _check_value(path: Path, key: str, name: str, value: Any, fidelity: str) -> Any:
+def _check_value(key: str, name: str, value: Any, fidelity: str) -> None:
+    """A ValueError naming key unless value is one parameter name takes at fidelity."""
     if name not in PARAMETERS:
-        raise _error(path, key, f"unknown parameter; expected one of {', '.join(PARAMETERS)}")
+        raise ValueError(f"key '{key}': unknown parameter; expected one of {', '.join(PARAMETERS)}")
     p = PARAMETERS[name]
     if fidelity not in p.fidelities:
         other = "rgb_sigma_grey (grey levels)" if name == "pixel_sigma_px" else "pixel_sigma_px"
-        raise _error(
-            path, key, f"applies to fidelity '{p.fidelities[0]}' only; at '{fidelity}' use {other} instead"
+        raise ValueError(
+            f"key '{key}': applies to fidelity '{p.fidelities[0]}' only; at '{fidelity}' use {other} instead"
         )
     if not p.valid(value):
-        raise _error(path, key, f"expected {p.expected}, got {value!r}")
-    return float(value) if p.kind is float else value
+        raise ValueError(f"key '{key}': expected {p.expected}, got {value!r}")
 
 
-def _section(path: Path, data: dict, name: str) -> dict:
-    section = data.get(name, {})
-    if not isinstance(section, dict):
-        raise _error(path, name, "expected a table ([" + name + "])")
-    return section
-
-
-def _methods(path: Path, value: Any) -> list[str]:
+def _methods(value: str | list[str]) -> list[str]:
+    """A sweep file's 'methods' as a list of names; a ValueError naming the bad entry."""
     from hec.estimator.solve.methods import METHODS
 
     if value == "all":
         return list(METHODS)
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list) or not value:
-        raise _error(path, "methods", f'expected "all" or a list of method names, got {value!r}')
-    for i, name in enumerate(value):
+    names = [value] if isinstance(value, str) else value
+    for i, name in enumerate(names):
         if name not in METHODS:
-            raise _error(path, f"methods[{i}]", f"unknown method {name!r}; choose from {', '.join(METHODS)}")
-    if len(set(value)) != len(value):
-        raise _error(path, "methods", "a method is listed twice")
-    return list(value)
+            raise ValueError(f"key 'methods[{i}]': unknown method {name!r}; choose from {', '.join(METHODS)}")
+    if len(set(names)) != len(names):
+        raise ValueError("key 'methods': a method is listed twice")
+    return list(names)
 
 
-def _int(path: Path, data: dict, key: str, default: int, lo: int) -> int:
-    value = data.get(key, default)
-    if not isinstance(value, int) or isinstance(value, bool) or value < lo:
-        raise _error(path, key, f"expected an integer >= {lo}, got {value!r}")
-    return value
+Values = Annotated[list[Any], Field(min_length=1)]
+_TABLE = "should be a table of parameter = value"
+_AXIS = "should be a table of parameter = [values, ...], each list non-empty"
+
+
+class SweepFile(Section):
+    """A sweep file's keys (module doc); the parameters' values are checked against PARAMETERS."""
+
+    fidelity: Literal["measurements", "render"] = Field(
+        MEASUREMENTS, description="should be 'measurements' or 'render'"
+    )
+    seed: int = Field(0, strict=True, ge=0, description="should be an integer >= 0")
+    paired: bool = Field(False, strict=True, description="should be true or false")
+    trials: int = Field(1, strict=True, ge=1, description="should be an integer >= 1")
+    methods: str | Annotated[list[StrictStr], Field(min_length=1)] = Field(
+        "all", description='should be "all" or a list of method names'
+    )
+    scenario: StrictStr | None = Field(None, description="should be a file name")
+    fixed: dict[str, Any] = Field({}, description=_TABLE)
+    levels: dict[str, Values] = Field({}, description=_AXIS)
+    grid: dict[str, Values] = Field({}, description=_AXIS)
+
+    @model_validator(mode="after")
+    def _values_known(self) -> SweepFile:
+        _methods(self.methods)
+        for k, v in self.fixed.items():
+            _check_value(f"fixed.{k}", k, v, self.fidelity)
+        for name in ("levels", "grid"):
+            for k, values in getattr(self, name).items():
+                for i, v in enumerate(values):
+                    _check_value(f"{name}.{k}[{i}]", k, v, self.fidelity)
+        lengths = {k: len(v) for k, v in self.levels.items()}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"key 'levels': every list must have the same length, got {lengths}")
+        seen: dict[str, str] = {}
+        for section in ("fixed", "levels", "grid"):
+            for k in getattr(self, section):
+                if k in seen:
+                    raise ValueError(f"key '{section}.{k}': already given in [{seen[k]}]")
+                seen[k] = section
+        return self
 
 
 def load_config(path: str | Path) -> SweepConfig:
     """Read and validate a sweep file and resolve its cells. Raises SweepConfigError."""
     path = Path(path)
-    data = read_toml(path, SweepConfigError, "sweep")
-    for key in data:
-        if key not in TOP_LEVEL_KEYS:
-            raise _error(path, key, f"unknown key; expected one of {', '.join(TOP_LEVEL_KEYS)}")
-    fidelity = data.get("fidelity", MEASUREMENTS)
-    if fidelity not in FIDELITIES:
-        raise _error(path, "fidelity", f"expected 'measurements' or 'render', got {fidelity!r}")
-    seed = _int(path, data, "seed", 0, 0)
-    paired = data.get("paired", False)
-    if not isinstance(paired, bool):
-        raise _error(path, "paired", f"expected true or false, got {paired!r}")
-    trials = _int(path, data, "trials", 1, 1)
-    methods = _methods(path, data.get("methods", "all"))
-    scenario_file = data.get("scenario")
-    if scenario_file is not None and not isinstance(scenario_file, str):
-        raise _error(path, "scenario", f"expected a file name, got {scenario_file!r}")
+    data = validated(
+        SweepFile, read_toml(path, SweepConfigError, "sweep"), str(path), SweepConfigError, keys=True
+    )
     try:
-        scenario = load_scenario(None if scenario_file is None else path.parent / scenario_file)
+        scenario = load_scenario(None if data.scenario is None else path.parent / data.scenario)
     except ScenarioError as exc:
         raise SweepConfigError(f"{path}: key 'scenario': {exc}") from None
 
-    fixed = {
-        k: _check_value(path, f"fixed.{k}", k, v, fidelity) for k, v in _section(path, data, "fixed").items()
-    }
-    axes: dict[str, dict[str, list]] = {}
-    for name in ("levels", "grid"):
-        axes[name] = {}
-        for k, values in _section(path, data, name).items():
-            if not isinstance(values, list) or not values:
-                raise _error(path, f"{name}.{k}", f"expected a non-empty list of values, got {values!r}")
-            axes[name][k] = [
-                _check_value(path, f"{name}.{k}[{i}]", k, v, fidelity) for i, v in enumerate(values)
-            ]
-    lengths = {k: len(v) for k, v in axes["levels"].items()}
-    if len(set(lengths.values())) > 1:
-        raise _error(path, "levels", f"every list must have the same length, got {lengths}")
-    seen: dict[str, str] = {}
-    for section, names in (("fixed", fixed), ("levels", axes["levels"]), ("grid", axes["grid"])):
-        for k in names:
-            if k in seen:
-                raise _error(path, f"{section}.{k}", f"already given in [{seen[k]}]")
-            seen[k] = section
+    def values(k: str, v: Any) -> Any:
+        return float(v) if PARAMETERS[k].kind is float else v
 
     config = SweepConfig(
         path,
-        fidelity,
-        seed,
-        paired,
-        trials,
-        methods,
+        data.fidelity,
+        data.seed,
+        data.paired,
+        data.trials,
+        _methods(data.methods),
         scenario,
-        scenario_file,
-        fixed,
-        axes["levels"],
-        axes["grid"],
+        data.scenario,
+        {k: values(k, v) for k, v in data.fixed.items()},
+        {k: [values(k, v) for v in vs] for k, vs in data.levels.items()},
+        {k: [values(k, v) for v in vs] for k, vs in data.grid.items()},
     )
     config.cells = _cells(config)
     return config

@@ -1,6 +1,7 @@
 """A sweep's results as a documentation page (`hec report DIR --page PATH.md`): per cell and method
-the median, p95 and RMS error and the mean NEES; for an error-budget sweep also the budget, hec's
-default method beside OpenCV's best per source. Written from the saved rows, never typed."""
+the median, p95 and RMS error and the mean NEES; per cell hec's default method beside OpenCV's
+best and how often seed-ekf warned when it was off; for an error-budget sweep also the budget,
+hec's default method beside OpenCV's best per source. Written from the saved rows, never typed."""
 
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ from hec.sweep.rows import load_rows
 from hec.sweep.summary import CellSummary
 
 OPENCV_PREFIX = "opencv-"
+SEED_EKF = "seed-ekf"
+# seed-ekf's NEES beyond which its result must carry a warning (6 degrees of freedom: p < 0.003).
+SEED_EKF_NEES_LIMIT = 20.0
 
 
 def _mm_deg(s: CellSummary | None) -> str:
@@ -89,6 +93,43 @@ def budget_rows(summaries: Sequence[CellSummary], cost: dict[str, str]) -> list[
     return rows
 
 
+def versus_rows(summaries: Sequence[CellSummary]) -> list[list[str]]:
+    """A row per cell: the default method's median mm and mean NEES, the best OpenCV method by
+    median mm, and the default method's median over that best one's."""
+    rows = []
+    for cell in dict.fromkeys(s.cell for s in summaries):
+        mine = [s for s in summaries if s.cell == cell]
+        ours = next((s for s in mine if s.method == DEFAULT_METHOD and s.ok), None)
+        opencv = [s for s in mine if s.method.startswith(OPENCV_PREFIX) and s.ok]
+        best = min(opencv, key=lambda s: s.translation_mm.median, default=None)
+        if ours is None or best is None:
+            continue
+        rows.append(
+            [
+                " ".join([cell, *(f"{k}={v}" for k, v in ours.parameters.items())]),
+                f"{ours.translation_mm.median:.3f}",
+                f"{ours.mean_nees:.1f}" if np.isfinite(ours.mean_nees) else "-",
+                f"{best.method.removeprefix(OPENCV_PREFIX)} {best.translation_mm.median:.3f}",
+                f"{ours.translation_mm.median / best.translation_mm.median:.2f}x",
+            ]
+        )
+    return rows
+
+
+def warning_rows(rows: Sequence[dict], method: str, nees_limit: float) -> list[list[str]]:
+    """A row per cell: method's ok trials, those with NEES above nees_limit, and how many of those
+    carried a warning (rows with a warnings column; none without)."""
+    out = []
+    for cell in dict.fromkeys(r["cell"] for r in rows):
+        ok = [r for r in rows if r["cell"] == cell and r["method"] == method and r["status"] == "ok"]
+        if not ok or "warnings" not in ok[0]:
+            continue
+        high = [r for r in ok if float(r["nees"]) > nees_limit]
+        warned = sum(float(r["warnings"]) > 0 for r in high)
+        out.append([cell, str(len(ok)), str(len(high)), str(warned)])
+    return out
+
+
 def write_sweep_page(out_dir: Path, summaries: Sequence[CellSummary], page: Path) -> Path:
     """Write the sweep in out_dir (its sweep.json names the configuration) as a results page."""
     record = json.loads((Path(out_dir) / "sweep.json").read_text())
@@ -116,6 +157,30 @@ def write_sweep_page(out_dir: Path, summaries: Sequence[CellSummary], page: Path
             f" {DEFAULT_METHOD}'s mean extra error over the ideal cell on the same trial, with its"
             " standard error (paired sweeps only).",
             markdown_table(header, budget_rows(summaries, cost)),
+        ]
+    versus = versus_rows(summaries)
+    if versus:
+        header = [
+            "cell",
+            f"{DEFAULT_METHOD} median mm",
+            "NEES",
+            "best OpenCV median mm",
+            f"{DEFAULT_METHOD} / best",
+        ]
+        body += ["## The default method against OpenCV's best", markdown_table(header, versus)]
+    warned = warning_rows(load_rows(out_dir), SEED_EKF, SEED_EKF_NEES_LIMIT)
+    if warned:
+        header = [
+            "cell",
+            f"{SEED_EKF} ok trials",
+            f"NEES > {SEED_EKF_NEES_LIMIT:g}",
+            "of those with a warning",
+        ]
+        body += [
+            f"## Does {SEED_EKF} say when it is off?",
+            f"The paper's method takes the camera, depth and arm as declared; its result should warn"
+            f" whenever its error is beyond its uncertainty (NEES > {SEED_EKF_NEES_LIMIT:g}).",
+            markdown_table(header, warned),
         ]
     header = ["cell", "method", "ok", "median mm", "p95 mm", "RMS mm", "median deg", "RMS / CRB", "NEES"]
     body += ["## Every cell and method", markdown_table(header, cell_rows(summaries))]

@@ -135,6 +135,16 @@ PARAMETERS: dict[str, Parameter] = {
             "the scenario's model-error sections ([errors.*]) switched on, at the scenario's "
             "magnitudes, the others off (default: those the scenario has on)",
         ),
+        _float(
+            "error_scale",
+            (RENDER,),
+            0.0,
+            False,
+            "every systematic error of the cell multiplied by this (default 1): the enabled model-error "
+            "sections' magnitudes (arm offsets, lengths, twists; intrinsics; the lens' departure from "
+            "its reported coefficients; depth registration; print scale, sag, placement) and the depth "
+            "bias's departure from exact (the depth_bias_* columns are its 1x values)",
+        ),
         Parameter(
             "board",
             str,

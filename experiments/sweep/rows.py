@@ -12,7 +12,9 @@ the fidelity's parameters (hec.sweep.config.PARAMETERS, resolved values), method
 ('ok' | 'failed'), failure ('' when ok), error_translation_mm, error_rotation_deg (against the truth),
 sigma_translation_mm, sigma_rotation_deg (root-sum-square of the method's three 1-sigmas; NaN without
 a covariance), nees (NaN without a covariance), crb_translation_mm, crb_rotation_deg (root-sum-square
-of the Cramer-Rao sigmas at the truth; NaN when not observable), time_s (the method's own time).
+of the Cramer-Rao sigmas at the truth; NaN when not observable), time_s (the method's own time),
+warnings (how many warnings the result carries, the fit check's and seed-ekf's assumption check's
+among them; NaN when failed).
 """
 
 from __future__ import annotations
@@ -46,10 +48,13 @@ RESULT_COLUMNS = (
     "crb_translation_mm",
     "crb_rotation_deg",
     "time_s",
+    "warnings",
 )
 
 
 FLOAT_COLUMNS = RESULT_COLUMNS[3:]
+# Columns rows written before they were recorded do not have (a report reads those rows too).
+OPTIONAL_COLUMNS = ("warnings",)
 TRIAL_ID = re.compile(r"^c(\d+)-t(\d+)$")
 
 

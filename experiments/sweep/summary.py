@@ -14,7 +14,7 @@ import numpy as np
 from hec.estimator.geometry.lie import pose_minus
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.problem import CalibrationProblem
-from hec.sweep.rows import FLOAT_COLUMNS, ID_COLUMNS, RESULT_COLUMNS, ROWS_FILE
+from hec.sweep.rows import FLOAT_COLUMNS, ID_COLUMNS, OPTIONAL_COLUMNS, RESULT_COLUMNS, ROWS_FILE
 
 # Columns every row has (hec.sweep.runner's row contract; seed is text, e.g. "seed/cell/trial"). Every
 # other column is a parameter of the trial (pixel_sigma_px, waypoints, trajectory, mount, ...): swept
@@ -86,7 +86,7 @@ def check_rows(rows: list[dict], source: str) -> None:
     known statuses and fidelities, and each cell has one value of each parameter."""
     if not rows:
         raise ReportError(f"{source}: no result rows; run `hec sweep` into this folder first")
-    missing = [c for c in ROW_COLUMNS if c not in rows[0]]
+    missing = [c for c in ROW_COLUMNS if c not in rows[0] and c not in OPTIONAL_COLUMNS]
     if missing:
         raise ReportError(
             f"{source}: missing column(s) {', '.join(missing)}; expected {', '.join(ROW_COLUMNS)}"

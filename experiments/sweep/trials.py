@@ -395,6 +395,7 @@ def run_trial(task: TrialTask) -> list[dict]:
                 "crb_translation_mm": crb[0],
                 "crb_rotation_deg": crb[1],
                 "time_s": float(result.diagnostics.get("time_s", time.perf_counter() - start)),
+                "warnings": float(len(result.warnings)),
             }
         )
     return rows

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import cv2
 
-from hec.estimator.targets.target import BoardDefinitionError, is_number
+from hec.estimator.targets.target import BoardDefinitionError
 
 # hec's ChArUco field -> the names OpenCV's parameters go by
 _CHARUCO_NAMES = {
@@ -101,7 +101,7 @@ def _field(data: dict, key: str, source: str) -> object:
 
 def _metres(value: object, key: str, source: str) -> object:
     """value, refused when it is a number too long for metres; other problems are the kind's to name."""
-    if is_number(value) and value > _LONGEST_SQUARE_M:
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > _LONGEST_SQUARE_M:
         raise BoardDefinitionError(
             f"{source}: '{key}' {value} is no length in metres (pixels or millimetres?); hec needs metres"
         )
