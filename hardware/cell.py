@@ -28,13 +28,20 @@ def plan_moves(
     waypoints: list[Waypoint],
     cable_limit_rad: float = np.pi,
     branches: Branches | None = None,
+    cell_problem: Callable[[np.ndarray], str | None] | None = None,
 ) -> list[PlannedMove]:
     """plan_joint_moves from the arm's current joints, within its joint limits, each target
-    checked as the arm checks it before moving and every path sample's flange against its
-    workspace box."""
+    checked as the arm checks it before moving, and every path sample's flange against its
+    workspace box; cell_problem (joints (6,) -> reason or None: the cell model,
+    hec.estimator.geometry.cell_model) at each target and path sample."""
+
+    def cell(q: np.ndarray) -> str | None:
+        return None if cell_problem is None else cell_problem(q)
 
     def flange_problem(q: np.ndarray) -> str | None:
-        return None if robot.forward is None else robot.limits.problem_with_flange(robot.forward(q))
+        if robot.forward is not None and (problem := robot.limits.problem_with_flange(robot.forward(q))):
+            return problem
+        return cell(q)
 
     return plan_joint_moves(
         waypoints,
@@ -42,7 +49,7 @@ def plan_moves(
         np.array(robot.limits.joint_lower_rad),
         np.array(robot.limits.joint_upper_rad),
         cable_limit_rad,
-        robot.check_joint_target,
+        lambda q: robot.check_joint_target(q) or cell(q),
         flange_problem,
         inverse,
         branches,
@@ -52,8 +59,8 @@ def plan_moves(
 class HardwareCell:
     """robot and camera, opened by the caller (closed by close()).
 
-    inverse: (T_base_flange (4, 4), seed joints (6,)) -> joints (6,) or None, the arm's
-    nominal inverse kinematics for waypoints given as poses. pose_frame: 'flange' records
+    plan: waypoints -> planned moves from the arm's current joints (plan_moves with the cell's
+    limits, cable limit and cell model: the same checks as the session's plan). pose_frame: 'flange' records
     T_base_flange (tool0), 'tcp' the controller's TCP pose (the result is then the camera
     in the TCP frame).
     """
@@ -65,19 +72,19 @@ class HardwareCell:
         robot: URRobot,
         camera: RealSenseCamera,
         board: Target,
-        inverse: Callable[[np.ndarray, np.ndarray], np.ndarray | None],
+        plan: Callable[[list[Waypoint]], list[PlannedMove]],
         pose_frame: str = "flange",
     ) -> None:
         if pose_frame not in POSE_FRAMES:
             raise ValueError(f"pose_frame must be one of {POSE_FRAMES}, got {pose_frame!r}")
         self.robot, self.camera, self.board = robot, camera, board
-        self.inverse = inverse
+        self._plan = plan
         self.pose_frame = pose_frame
         self.intrinsics = camera.intrinsics
         self.depth_scale_m = camera.depth_scale_m
 
     def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]:
-        return plan_moves(self.robot, self.inverse, waypoints)
+        return self._plan(waypoints)
 
     def move_to(self, move: PlannedMove) -> None:
         """moveJ to the planned joints; returns once the arm has settled. Raises RobotError."""

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from hec.estimator.geometry.camera import project
+from hec.estimator.geometry.cell_model import UR_LINK_CAPSULES, Box, CellModel, camera_parts
 from hec.estimator.geometry.kinematics import (
     IK_RESTARTS,
     forward,
@@ -22,7 +23,7 @@ from hec.estimator.geometry.kinematics import (
     solve_ik,
     ur_ik_nearest_first,
 )
-from hec.estimator.geometry.transforms import invert
+from hec.estimator.geometry.transforms import invert, make_transform
 from hec.estimator.geometry.waypoints import Waypoint, WaypointRejected
 from hec.estimator.observe.frames import Frame, GroundTruth
 from hec.sim.model_errors import draw_true_cell, reported_intrinsics
@@ -318,6 +319,21 @@ class SimCell:
         problem = self._collision()
         self.set_joints(before)
         return problem
+
+    def cell_model(self) -> CellModel:
+        """This cell as the real cell's planner sees it (hec.estimator.geometry.cell_model): the
+        nominal arm's link capsules, the camera and its cable on the flange (eye-in-hand), and every
+        box the arm collides with here (wall, floor, table, board, a camera's stand) in the base frame."""
+        T_base_world = invert(self.cell.T_world_base)
+        obstacles = []
+        for g in range(self.model.ngeom):
+            if self.model.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX or self.model.geom_conaffinity[g] == 0:
+                continue
+            T_world_geom = make_transform(self.data.geom_xmat[g].reshape(3, 3), self.data.geom_xpos[g])
+            half = tuple(float(v) for v in self.model.geom_size[g])
+            obstacles.append(Box(self._geom_label(g), T_base_world @ T_world_geom, half))
+        parts = UR_LINK_CAPSULES + (() if self.cell.eye_to_hand else camera_parts(self.cell.T_flange_cam))
+        return CellModel(self.cell.kinematics, parts, tuple(obstacles))
 
     def set_joints(self, q: np.ndarray) -> None:
         """Put the arm at joint angles q (6,), radians, without any check (the loopback

@@ -3,15 +3,23 @@
 
 from __future__ import annotations
 
-from hec.estimator.geometry.waypoints import PlannedMove, Waypoint, WaypointRejected
+import numpy as np
+
+from hec.estimator.geometry.joint_path import CABLE_LIMIT_RAD
+from hec.estimator.geometry.kinematics import has_ur_structure, solve_ik_nearest, ur_ik_branches
+from hec.estimator.geometry.move_plan import plan_joint_moves
+from hec.estimator.geometry.waypoints import PlannedMove, Waypoint
 from hec.estimator.observe.frames import Capture
 from hec.sim.cell import SimCell
 from hec.sim.noise import waypoint_rng
 
 
 class SimulatedCell:
-    """A SimCell behind the session interface. Planning moves the simulated arm through the
-    waypoints and back without drawing noise, and each capture draws the noise of its waypoint
+    """A SimCell behind the session interface. Planning is the real cell's (plan_joint_moves: the
+    visit order, least-swing branches of the nominal kinematics, the joint and cable limits, and
+    every move's joint path checked against the cell model, hec.estimator.geometry.cell_model, built
+    from this cell by SimCell.cell_model), with the simulator's own checks on top (MuJoCo's contacts
+    along the path, every marker in view at each target); each capture draws the noise of its waypoint
     (hec.sim.noise.waypoint_rng(noise_seed, waypoint index)), so a session, resumed or not, draws the
     same noise as `hec simulate` with the same seed and noise seed. The cell (its model errors) is
     the SimCell's own, drawn from its seed."""
@@ -27,19 +35,35 @@ class SimulatedCell:
         self.depth_scale_m = cell.scenario.noise.depth_quantisation.depth_scale_m
 
     def plan(self, waypoints: list[Waypoint]) -> list[PlannedMove]:
-        start_joints, start_time = self.cell.joints.copy(), self.cell.time_s
-        moves = []
+        kinematics = self.cell.cell.kinematics
+        cell_model = self.cell.cell_model()
+        branches = None
+        if has_ur_structure(kinematics):
+
+            def branches(T_base_flange, q_near, lower, upper):  # noqa: ANN001, ANN202
+                return ur_ik_branches(kinematics, T_base_flange, q_near, lower, upper)
+
+        return plan_joint_moves(
+            waypoints,
+            self.cell.joints.copy(),
+            np.array(kinematics.q_lower),
+            np.array(kinematics.q_upper),
+            CABLE_LIMIT_RAD,
+            lambda q: cell_model.problem(q) or self._target_problem(q),
+            lambda q: cell_model.problem(q) or self.cell.collision_at(q),
+            lambda T_base_flange, q: solve_ik_nearest(kinematics, T_base_flange, q),
+            branches,
+        )
+
+    def _target_problem(self, q: np.ndarray) -> str | None:
+        """What keeps the arm from capturing at joints q (6,): a contact with the cell or a marker
+        out of view; the arm is put back where it was."""
+        before = self.cell.joints.copy()
+        self.cell.set_joints(q)
         try:
-            for waypoint in waypoints:
-                try:
-                    self.cell.move_to(waypoint)
-                    moves.append(PlannedMove(waypoint, self.cell.joints.copy()))
-                except WaypointRejected as rejected:
-                    moves.append(PlannedMove(waypoint, None, rejected.reason))
+            return self.cell.collision_at(q) or self.cell.markers_visible_problem()
         finally:
-            self.cell.set_joints(start_joints)
-            self.cell.time_s = start_time
-        return moves
+            self.cell.set_joints(before)
 
     def move_to(self, move: PlannedMove) -> None:
         """Raises WaypointRejected when the planned joints cannot be used from here."""

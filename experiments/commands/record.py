@@ -304,7 +304,13 @@ def _record_hardware(
     inverse = _inverse(config.robot.model)
     with config.open_robot(config.robot_host(args.robot), read_only=args.dry_run) as robot:
         cable_limit = float(np.radians(config.robot.wrist_cable_limit_deg))
-        moves = plan_moves(robot, inverse, waypoints, cable_limit, _branches(config.robot.model))
+        cell_model = config.cell_model.cell_model(config.robot.model)
+
+        def plan(waypoints: list[Waypoint]) -> list[PlannedMove]:
+            branches = _branches(config.robot.model)
+            return plan_moves(robot, inverse, waypoints, cable_limit, branches, cell_model.problem)
+
+        moves = plan(waypoints)
         print_plan(moves, lambda q: forward(kinematics, q))
         if args.preview is not None:
             print(f"preview: {preview.write_path_preview(args.preview, moves, robot.joints())}")
@@ -333,7 +339,7 @@ def _record_hardware(
             if not args.yes and not _confirm(question, read_line):
                 print("not started: nothing moved")
                 return 2
-            cell = HardwareCell(robot, camera, find_board(config.board), inverse, config.robot.pose_frame)
+            cell = HardwareCell(robot, camera, find_board(config.board), plan, config.robot.pose_frame)
             extra = _hardware_metadata(args, config, cell)
             return _session(args, cell, moves, extra, None, None, lambda q: forward(kinematics, q))
 
@@ -359,13 +365,14 @@ def _hardware_metadata(args: argparse.Namespace, config: CellConfig, cell: Hardw
 
 
 def _pool(moves: list[PlannedMove], forward_fk: Callable[[np.ndarray], np.ndarray]) -> list[Waypoint]:
-    """An adaptive session's pool from a waypoint file's plan: the usable waypoints, each with its
-    flange pose (joint waypoints: the nominal kinematics of their joints)."""
+    """An adaptive session's pool from a waypoint file's plan: the usable waypoints in the file's
+    order (not the plan's visit order), each with its flange pose (joint waypoints: the nominal
+    kinematics of their joints)."""
     return [
         replace(m.waypoint, T_base_flange=forward_fk(m.joints))
         if m.waypoint.T_base_flange is None
         else m.waypoint
-        for m in moves
+        for m in sorted(moves, key=lambda m: m.waypoint.index)
         if m.joints is not None
     ]
 
@@ -404,7 +411,12 @@ def _session(
         cell.board,
         cell.depth_scale_m,
         cell.source,
-        extra=extra | {"waypoints": waypoints_fingerprint(pool or [m.waypoint for m in moves])},
+        extra=extra
+        | {
+            "waypoints": waypoints_fingerprint(
+                pool or sorted((m.waypoint for m in moves), key=lambda w: w.index)
+            )
+        },
         ground_truth=truth,
         resume=args.resume,
         fixed=RESUME_FIXED,

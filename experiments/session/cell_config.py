@@ -16,7 +16,16 @@ import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
 from hec.estimator.common.noise import RobotPoseNoise
+from hec.estimator.geometry.cell_model import (
+    CLEARANCE_M,
+    FLANGE,
+    UR_LINK_CAPSULES,
+    Box,
+    Capsule,
+    CellModel,
+)
 from hec.estimator.geometry.kinematics import ROBOTS, forward
+from hec.estimator.geometry.transforms import transform_from_xyz_rpy
 from hec.estimator.io.tomlfile import Section, read_toml, validation_problems
 from hec.estimator.observe.depth import DepthNoiseModel
 from hec.hardware.camera_settings import FILTERS, RealSenseSettings
@@ -120,6 +129,76 @@ class CameraSection(Section):
         )
 
 
+class FlangePartSection(Section):
+    """Something carried by the flange (the camera, its cable): a capsule, the points within
+    radius_m of the segment from_m..to_m in the flange frame (tool0), metres."""
+
+    name: str
+    from_m: Vector3
+    to_m: Vector3
+    radius_m: float = Field(gt=0)
+
+
+class ObstacleSection(Section):
+    """Something in the cell the arm must not touch: a box in the base frame, its centre, its half
+    sizes along its axes, and its axes turned by roll-pitch-yaw (fixed x, y, z) from the base's."""
+
+    name: str
+    centre_m: Vector3
+    half_size_m: Vector3
+    rotation_rpy_deg: Vector3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _positive(self) -> ObstacleSection:
+        if min(self.half_size_m) <= 0:
+            raise ValueError("half_size_m must be positive on every axis")
+        return self
+
+
+# The simulated cell's camera at its default mount (hec.estimator.geometry.cell_model.camera_parts,
+# rounded up to the millimetre) and its cable, in the flange frame.
+_DEFAULT_FLANGE_PARTS = (
+    FlangePartSection(
+        name="camera", from_m=(-0.045, 0.006, 0.026), to_m=(0.045, 0.006, 0.026), radius_m=0.018
+    ),
+    FlangePartSection(
+        name="camera cable", from_m=(0.045, 0.006, 0.026), to_m=(0.045, 0.006, -0.074), radius_m=0.01
+    ),
+)
+# The simulated cell's (models/cell.xml with the default scenario's board on its table), in the base
+# frame: y up, z out of the wall.
+_DEFAULT_OBSTACLES = (
+    ObstacleSection(name="wall", centre_m=(0.0, 0.05, -0.05), half_size_m=(1.5, 1.5, 0.05)),
+    ObstacleSection(name="floor", centre_m=(0.0, -1.46, 1.5), half_size_m=(1.5, 0.01, 1.5)),
+    ObstacleSection(name="table top", centre_m=(0.15, -0.723, 0.45), half_size_m=(0.5, 0.02, 0.32)),
+    ObstacleSection(name="table leg", centre_m=(0.15, -1.0965, 0.45), half_size_m=(0.04, 0.3535, 0.04)),
+    ObstacleSection(name="board", centre_m=(0.15, -0.702, 0.45), half_size_m=(0.2, 0.001, 0.11)),
+)
+
+
+class CellModelSection(Section):
+    """What the planner checks every move's path against before the arm moves
+    (hec.estimator.geometry.cell_model): the arm's links, flange_parts and obstacles, every part
+    kept clearance_m from every obstacle."""
+
+    clearance_m: float = Field(CLEARANCE_M, ge=0)
+    flange_parts: tuple[FlangePartSection, ...] = _DEFAULT_FLANGE_PARTS
+    obstacles: tuple[ObstacleSection, ...] = _DEFAULT_OBSTACLES
+
+    def cell_model(self, model: str) -> CellModel:
+        """The cell model of the arm `model` (a name in ROBOTS) with these parts and obstacles."""
+        parts = tuple(Capsule(p.name, FLANGE, p.from_m, p.to_m, p.radius_m) for p in self.flange_parts)
+        obstacles = tuple(
+            Box(
+                o.name,
+                transform_from_xyz_rpy(np.array(o.centre_m), np.radians(o.rotation_rpy_deg)),
+                o.half_size_m,
+            )
+            for o in self.obstacles
+        )
+        return CellModel(ROBOTS[model], UR_LINK_CAPSULES + parts, obstacles, self.clearance_m)
+
+
 class CellConfig(Section):
     """board: the printed board. setup: 'eye-in-hand' (the camera on the flange) or 'eye-to-hand' (the
     camera fixed in the cell, the board on the flange; recorded in the dataset)."""
@@ -128,6 +207,7 @@ class CellConfig(Section):
     setup: Literal["eye-in-hand", "eye-to-hand"] = "eye-in-hand"
     robot: RobotSection = RobotSection()
     camera: CameraSection = CameraSection()
+    cell_model: CellModelSection = CellModelSection()
 
     def to_dict(self) -> dict:
         return self.model_dump(mode="json")
