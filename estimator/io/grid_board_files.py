@@ -6,7 +6,7 @@ size name it) and 'size_m' (the sheet is the grid and the white around it its co
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
 from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
@@ -33,6 +33,13 @@ class SheetFile(FileFormat):
     version: Literal[1]
     name: Text | None = Field(None, min_length=1, description=_NAME)
     size_m: tuple[Positive, Positive] | None = Field(None, description=_SIZE)
+
+    @classmethod
+    def of(cls, board: AprilGridBoard | ChessboardBoard | CharucoBoard) -> SheetFile:
+        """The file of a board: the header, its kind and every field of the board (each kind's
+        dataclass fields are a subset of its file's)."""
+        values = {field.name: getattr(board, field.name) for field in fields(board)}
+        return cls.model_construct(format="hec-board", version=1, kind=board.kind, **values)
 
 
 class AprilGridFile(SheetFile):
@@ -86,23 +93,6 @@ class AprilGridFile(SheetFile):
             margin = board.visible_margin_m
             board = replace(board, size_m=tuple(s + 2 * margin for s in board.grid_size_m))
         return board
-
-    @classmethod
-    def of(cls, board: AprilGridBoard) -> AprilGridFile:
-        return cls.model_construct(
-            format="hec-board",
-            version=1,
-            kind="aprilgrid",
-            name=board.name,
-            size_m=board.size_m,
-            tag_cols=board.tag_cols,
-            tag_rows=board.tag_rows,
-            tag_size_m=board.tag_size_m,
-            tag_spacing=board.tag_spacing,
-            border_bits=board.border_bits,
-            first_id=board.first_id,
-            corner_squares=board.corner_squares,
-        )
 
 
 class ChessboardFile(SheetFile):
@@ -160,19 +150,6 @@ class ChessboardFile(SheetFile):
             self.square_m,
         )
 
-    @classmethod
-    def of(cls, board: ChessboardBoard) -> ChessboardFile:
-        return cls.model_construct(
-            format="hec-board",
-            version=1,
-            kind="chessboard",
-            name=board.name,
-            size_m=board.size_m,
-            squares_x=board.squares_x,
-            squares_y=board.squares_y,
-            square_m=board.square_m,
-        )
-
 
 class CharucoFile(SheetFile):
     """A ChArUco board: OpenCV's CharucoBoard of that geometry and ArUco dictionary."""
@@ -212,21 +189,6 @@ class CharucoFile(SheetFile):
             self.square_m,
             self.marker_m,
             self.dictionary,
-        )
-
-    @classmethod
-    def of(cls, board: CharucoBoard) -> CharucoFile:
-        return cls.model_construct(
-            format="hec-board",
-            version=1,
-            kind="charuco",
-            name=board.name,
-            size_m=board.size_m,
-            squares_x=board.squares_x,
-            squares_y=board.squares_y,
-            square_m=board.square_m,
-            marker_m=board.marker_m,
-            dictionary=board.dictionary,
         )
 
 
