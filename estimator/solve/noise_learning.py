@@ -48,7 +48,6 @@ from hec.estimator.solve.noise_levels import NoiseLevels, declared_levels, scale
 from hec.estimator.solve.prior_scale import name_groups, updated_prior_scale
 from hec.estimator.solve.problem import CalibrationProblem
 from hec.estimator.solve.self_calibration import (
-    SCALE_CORRELATION,
     NuisanceUncertainty,
     SelfCalibrationObjective,
     adjusted_problem,
@@ -57,7 +56,7 @@ from hec.estimator.solve.self_calibration import (
     group_members,
     group_names,
     noteworthy_sizes,
-    print_depth_scale_correlation,
+    scales_confounded,
 )
 from hec.estimator.solve.stacked_prediction import StackedFrames
 
@@ -307,7 +306,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         depth_only = not (corners_misfit or flange_misfit)
         tried = available_groups(problem, arm_misfit=False, depth_only=depth_only)
         final, kept, uncertainty = _self_calibrate(problem, options, start, P0, first, tried)
-        if depth_only and "board_scale" in kept and not _scales_confounded(problem, kept, uncertainty):
+        if depth_only and "board_scale" in kept and not scales_confounded(problem, kept, uncertainty.theta):
             tried = tuple(g for g in tried if g != "board_scale")
             final, kept, uncertainty = _self_calibrate(problem, options, start, P0, first, tried)
         # The camera's errors (a depth bias above all) push the flange poses too: the arm misfits
@@ -374,15 +373,6 @@ def _misfits(
             unlikely = chi2.sf(ratios[name] * redundancy, redundancy) < ARM_MISFIT_PROBABILITY
             flange |= _sigma(levels, name) > MISFIT_SCALE * start and unlikely
     return levels.pixel_scale > MISFIT_SCALE, levels.depth_scale > MISFIT_SCALE, flange
-
-
-def _scales_confounded(
-    problem: CalibrationProblem, kept: tuple[str, ...], uncertainty: NuisanceUncertainty
-) -> bool:
-    """Whether the views cannot tell the print scale from the depth's scale: their estimates with
-    the groups kept correlated beyond SCALE_CORRELATION."""
-    correlation = print_depth_scale_correlation(group_names(problem, kept), uncertainty.theta)
-    return correlation is not None and abs(correlation) >= SCALE_CORRELATION
 
 
 def _arm_misfits_still(

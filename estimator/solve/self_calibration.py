@@ -192,6 +192,15 @@ def print_depth_scale_correlation(names: Sequence[str], theta_covariance: np.nda
     return float(board @ C @ depth / np.sqrt((board @ C @ board) * (depth @ C @ depth)))
 
 
+def scales_confounded(
+    problem: CalibrationProblem, groups: Sequence[str], theta_covariance: np.ndarray
+) -> bool:
+    """Whether the views cannot tell the print scale from the depth's scale: their estimates in
+    theta_covariance (over group_names(problem, groups)) correlated beyond SCALE_CORRELATION."""
+    correlation = print_depth_scale_correlation(group_names(problem, groups), theta_covariance)
+    return correlation is not None and abs(correlation) >= SCALE_CORRELATION
+
+
 def group_members(problem: CalibrationProblem, group: str) -> tuple[str, ...]:
     """The theta names of one group (the marker shifts: two for each of the problem's markers)."""
     if group == MARKER_SHIFTS:
