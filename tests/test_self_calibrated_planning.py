@@ -5,6 +5,7 @@ self-calibration corrections are marginalised, and a planner that chooses by it.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from hec.estimator.geometry.kinematics import IK_RESTARTS, UR5, solve_ik_nearest
 from hec.estimator.geometry.transforms import invert
@@ -134,3 +135,29 @@ def test_the_kinematics_group_needs_reachable_views_and_the_arm() -> None:
     mount = eliminate_board(full.sum(axis=0) + prior)
     sigma_deg = np.degrees(np.sqrt(np.diag(np.linalg.inv(mount))[3:]))
     assert np.linalg.norm(sigma_deg) > 0.05
+
+
+def test_a_real_cells_plan_marginalises_the_groups_its_calibration_kept() -> None:
+    from hec.session.view_plan import kept_groups
+
+    values = {"fx_px": {}, "k1": {}, "joint3_d_m": {}, "marker4_x_m": {}}
+    result = {"noise": {"self_calibration": {"values": values}}}
+    assert kept_groups(result) == ("intrinsics", "distortion", "kinematics", "marker_shifts")
+    assert kept_groups({"noise": {"self_calibration": None}}) == () == kept_groups({})
+
+
+@pytest.mark.needs("sim")
+def test_a_scenario_with_model_errors_plans_for_the_self_calibrated_state() -> None:
+    """The realistic scenario plans over every group, the arm's kinematics too; the ideal one on the
+    mount and board pose alone, as before."""
+    from hec.session.view_plan import _plan, simulated_cell
+
+    realistic = simulated_cell("realistic", 0.02)
+    assert realistic.groups == planning_groups(realistic.board, arm_known=True)
+    ideal = simulated_cell(None, 0.02)
+    assert ideal.groups == () and ideal.kinematics is None
+    plan = _plan(realistic, 6, None, "d-optimal", 150, 0.02, 0)
+    assert plan.groups == realistic.groups and len(plan.views) == 6
+    # the corrections' priors leave the mount a floor: the prediction stays above the ideal cell's
+    ideal_plan = _plan(ideal, 6, None, "d-optimal", 150, 0.02, 0)
+    assert plan.steps[-1].sigma_translation_mm > 2 * ideal_plan.steps[-1].sigma_translation_mm
