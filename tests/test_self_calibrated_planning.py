@@ -4,6 +4,8 @@ self-calibration corrections are marginalised, and a planner that chooses by it.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -161,3 +163,22 @@ def test_a_scenario_with_model_errors_plans_for_the_self_calibrated_state() -> N
     # the corrections' priors leave the mount a floor: the prediction stays above the ideal cell's
     ideal_plan = _plan(ideal, 6, None, "d-optimal", 150, 0.02, 0)
     assert plan.steps[-1].sigma_translation_mm > 2 * ideal_plan.steps[-1].sigma_translation_mm
+
+
+@pytest.mark.needs("sim")
+def test_an_adaptive_session_on_the_realistic_cell_marginalises_its_self_calibration(tmp_path: Path) -> None:
+    """The adaptive session on a cell with model errors chooses by the self-calibrated state's
+    information and records which groups it marginalised."""
+    import json
+
+    from tests.hec_cli import run_hec
+
+    out = tmp_path / "rec"
+    argv = ["record", "--sim", "--scenario", "realistic", "--target-sigma-mm", "0.001"]
+    code, stdout, stderr = run_hec(
+        [*argv, "--target-sigma-deg", "0.0001", "--max-views", "4", "--out", str(out)]
+    )
+    assert code == 0, stderr
+    block = json.loads((out / "dataset.json").read_text())["session"]["adaptive"]
+    assert block["views"] == 4 and "kinematics" in block["self_calibration_groups"]
+    assert "board_scale" in block["self_calibration_groups"]
