@@ -142,9 +142,9 @@ def test_the_kinematics_group_needs_reachable_views_and_the_arm() -> None:
 def test_a_real_cells_plan_marginalises_the_groups_its_calibration_kept() -> None:
     from hec.session.view_plan import kept_groups
 
-    values = {"fx_px": {}, "k1": {}, "joint3_d_m": {}, "marker4_x_m": {}}
-    result = {"noise": {"self_calibration": {"values": values}}}
-    assert kept_groups(result) == ("intrinsics", "distortion", "kinematics", "marker_shifts")
+    kept = ["marker_shifts", "kinematics", "intrinsics", "not_a_group"]
+    result = {"noise": {"self_calibration": {"groups_kept": kept, "groups_tried": [*kept, "distortion"]}}}
+    assert kept_groups(result) == ("intrinsics", "kinematics", "marker_shifts")
     assert kept_groups({"noise": {"self_calibration": None}}) == () == kept_groups({})
 
 

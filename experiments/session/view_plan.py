@@ -41,7 +41,7 @@ from hec.estimator.geometry.waypoints import (
 )
 from hec.estimator.observe.synthetic import SyntheticNoise
 from hec.estimator.solve.self_calibrated_planning import planning_groups, self_calibrated_informations
-from hec.estimator.solve.self_calibration import KINEMATIC_NUISANCE, MARKER_SHIFTS, NUISANCE_GROUPS
+from hec.estimator.solve.self_calibration import NUISANCE_GROUPS
 from hec.estimator.solve.setup_roles import model_pose
 from hec.estimator.solve.view_planning import (
     CRITERIA,
@@ -256,17 +256,10 @@ def calibrated_cell(
 
 
 def kept_groups(result: dict) -> tuple[str, ...]:
-    """The NUISANCE_GROUPS a calibration result self-calibrated (its noise's self_calibration values),
-    () without self-calibration."""
-    values = ((result.get("noise") or {}).get("self_calibration") or {}).get("values") or {}
-    names = set(values)
-    kept = {
-        group
-        for group, members in NUISANCE_GROUPS.items()
-        if names & set(members) or (group == MARKER_SHIFTS and any(n.startswith("marker") for n in names))
-    }
-    if names & set(KINEMATIC_NUISANCE):
-        kept.add("kinematics")
+    """The NUISANCE_GROUPS a calibration result self-calibrated (its noise's self_calibration
+    groups_kept, in NUISANCE_GROUPS order), () without self-calibration."""
+    block = (result.get("noise") or {}).get("self_calibration") or {}
+    kept = set(block.get("groups_kept") or ())
     return tuple(g for g in NUISANCE_GROUPS if g in kept)
 
 
