@@ -27,6 +27,8 @@ import time
 
 import cv2
 import numpy as np
+from scipy.stats import norm as normal
+from scipy.stats import t as student_t
 
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.geometry.lie import pose_minus, pose_plus, skew, so3_right_jacobian_inverse
@@ -35,6 +37,7 @@ from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import OPENCV_METHODS, ROBOT_WORLD_METHODS
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, mean_pose, rotation_spread
+from hec.estimator.solve.level_uncertainty import student_t_factor
 from hec.estimator.solve.misfit import FRAMES_NAMED, MISFIT_RATIO
 from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError
 
@@ -47,8 +50,10 @@ START_SIGMAS = np.array([1e-3] * 3 + [np.radians(0.1)] * 3)
 VCE_TOLERANCE = 1e-4
 VCE_ITERATIONS = 50
 # A learned component never goes below this fraction of its start (an axis whose scatter the robot
-# noise carried through already explains would otherwise shrink to zero and stop the iteration).
-VCE_FLOOR = 1e-6
+# noise carried through already explains would otherwise shrink to zero and stop the iteration; and
+# exact pairs at a floor far below this leave the filters' innovation covariance, against their wide
+# prior, singular to working precision).
+VCE_FLOOR = 1e-4
 # A tracking pose's noise, as a fraction of the viewing distance (a PnP pose along its line of sight
 # from ordinary corners), for the misfit check.
 TRACKING_NOISE_FRACTION = 0.005
@@ -62,15 +67,21 @@ SCALE_UNRESOLVED = 0.01
 GN_ITERATIONS = 50
 # The filters' prior around the Park solution: wide, it adds no information.
 FILTER_PRIOR_SIGMA = (0.1, 0.5)  # metres, radians
-# Student's t variance factor nu / (nu - 2) is infinite at 2 degrees of freedom: below this many, this one.
-MAX_LEARNED_NOISE_FACTOR = 3.0
 
 
 def learned_noise_factor(pairs: int) -> float:
-    """The variance factor of a mount whose board pose noise was learned from pairs pairs: nu / (nu - 2)
-    with nu = pairs - 2 (module doc), at most MAX_LEARNED_NOISE_FACTOR."""
-    nu = pairs - 2
-    return MAX_LEARNED_NOISE_FACTOR if nu <= 3 else min(nu / (nu - 2), MAX_LEARNED_NOISE_FACTOR)
+    """The variance factor of a mount whose board pose noise was learned from pairs pairs: Student's t's
+    nu / (nu - 2) with nu = pairs - 2 (module doc)."""
+    return student_t_factor(pairs - 2)
+
+
+def scale_threshold(pairs: int, learned: bool) -> float:
+    """How many (learned-level) sigmas a tracking scale must be from 1 to be named: SCALE_SIGNIFICANT,
+    or with the levels learned from pairs pairs the quantile of Student's t (nu = pairs - 2) that is
+    exceeded as rarely as the normal's SCALE_SIGNIFICANT (a level from 10 pairs is often too small)."""
+    if not learned:
+        return SCALE_SIGNIFICANT
+    return float(student_t.isf(normal.sf(SCALE_SIGNIFICANT), max(pairs - 2, 1)))
 
 
 def solve_pose_pairs(
@@ -142,14 +153,15 @@ def pose_pair_misfit(pairs: list[PosePair], result: Calibration, robot_noise: Ro
 
 def tracking_bias_warning(pairs: list[PosePair], robot_noise: RobotPoseNoise) -> str | None:
     """A warning when the tracking poses' translations read a scale off what the robot's motions give
-    (PosePairModel.tracking_scale, beyond SCALE_SIGNIFICANT sigmas and SCALE_NOTEWORTHY), sized at
-    the pairs' median viewing distance; None when the data show none."""
+    (PosePairModel.tracking_scale, beyond scale_threshold sigmas and SCALE_NOTEWORTHY), sized at the
+    pairs' median viewing distance (its sigma widened as the mount's for learned levels); None when
+    the data show none."""
     model = PosePairModel(pairs, robot_noise)
     X, B = opencv_pose_pairs(pairs, "opencv-park")
     optimum = model.batch(X, B)
-    scale, sigma = model.tracking_scale(
-        optimum.T_flange_cam, optimum.T_base_board, optimum.diagnostics.get("learned_pose_sigma")
-    )
+    levels = optimum.diagnostics.get("learned_pose_sigma")
+    scale, sigma = model.tracking_scale(optimum.T_flange_cam, optimum.T_base_board, levels)
+    threshold = scale_threshold(len(pairs), levels is not None)
     distance = float(np.median([np.linalg.norm(p.T_cam_board[:3, 3]) for p in pairs]))
     if sigma > SCALE_UNRESOLVED:
         return (
@@ -159,8 +171,9 @@ def tracking_bias_warning(pairs: list[PosePair], robot_noise: RobotPoseNoise) ->
             + " (views at one distance), and such a scale moves the mount along the line of sight "
             "unseen; add views nearer to and farther from the board to measure it"
         )
-    if abs(scale - 1.0) <= max(SCALE_SIGNIFICANT * sigma, SCALE_NOTEWORTHY):
+    if abs(scale - 1.0) <= max(threshold * sigma, SCALE_NOTEWORTHY):
         return None
+    sigma *= np.sqrt(learned_noise_factor(len(pairs))) if levels is not None else 1.0
     return (
         f"the tracking poses' translations read {100 * (scale - 1.0):+.2f} % (+-{100 * sigma:.2f} %) off "
         "what the robot's motions give: a bias common to them (their camera's focal length, the board's "
