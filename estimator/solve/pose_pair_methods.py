@@ -15,10 +15,11 @@ easy_handeye2 writes them), the board pose's noise is learned from the residuals
 components, one per axis of its perturbation (translation along and rotation about the camera's
 and the board's axes: a PnP pose is far less certain along the line of sight), by Foerstner's
 variance component estimation with the redundancies of the fit, and the result says so. A level
-learned from few pairs is itself uncertain: each of the six has on average n - 2 degrees of
-freedom (6 n residuals, 12 parameters), and the mount's error over a learned sigma follows
-Student's t rather than the normal, whose variance is nu / (nu - 2) times larger; the learned
-covariance is widened by that factor (1.33 for 10 pairs, 1.13 for 20).
+learned from few pairs is itself uncertain: each of the six has its redundancy as degrees of
+freedom (on average n - 2: 6 n residuals, 12 parameters), and the part of the mount's error its
+noise carries follows Student's t rather than the normal, whose variance is nu / (nu - 2) times
+larger; each component's part of the mount's covariance is widened by its factor
+(level_widening; on average 1.33 for 10 pairs, 1.13 for 20).
 """
 
 from __future__ import annotations
@@ -330,12 +331,27 @@ class PosePairModel:
             X, B, H, iterations = self._gauss_newton(X, B, levels)
         result = Calibration("batch", X, np.linalg.inv(H)[:6, :6], B, None, [], len(self.pairs), 0)
         result.diagnostics["iterations"] = iterations
-        self._note_noise(result, levels)
+        widening = None if levels is None else self.level_widening(X, B, H, levels)
+        self._note_noise(result, levels, widening)
         return result
 
     def _learned_levels(self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray) -> np.ndarray:
         """Foerstner's variance component update of the per-axis sigmas levels (6,): each component's
         weighted squared residuals over its redundancy."""
+        out = [
+            sigma * np.sqrt(max(weighted, 0.0) / max(redundancy, 1e-12))
+            for sigma, (weighted, redundancy, _) in zip(
+                levels, self._components(X, B, H, levels), strict=True
+            )
+        ]
+        return np.maximum(out, VCE_FLOOR * START_SIGMAS)
+
+    def _components(
+        self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray
+    ) -> list[tuple[float, float, np.ndarray]]:
+        """Per component of levels (6,): its weighted squared residuals, its redundancy and its part of
+        the information's sandwich, H_k (12, 12): inv(H) H_k inv(H) is what its noise adds to the
+        state's covariance."""
         r, J, J_A = self.stacked(X, B)
         covs = self.measurement_covariances(J_A, levels)
         W = np.linalg.inv(covs)
@@ -346,16 +362,29 @@ class PosePairModel:
             part[k] = sigma**2
             W_k = W @ (part[:, None] * np.eye(6)) @ W  # d(inverse covariance) direction of component k
             weighted = float(np.einsum("ni,nij,nj->", r, W_k, r))
-            redundancy = float(np.einsum("nij,nji->", W_k, covs)) - float(
-                np.trace(H_inv @ np.einsum("nji,njk,nkl->il", J, W_k, J))
-            )
-            out.append(sigma * np.sqrt(max(weighted, 0.0) / max(redundancy, 1e-12)))
-        return np.maximum(out, VCE_FLOOR * START_SIGMAS)
+            H_k = np.einsum("nji,njk,nkl->il", J, W_k, J)
+            redundancy = float(np.einsum("nij,nji->", W_k, covs)) - float(np.trace(H_inv @ H_k))
+            out.append((weighted, redundancy, H_k))
+        return out
 
-    def _note_noise(self, result: Calibration, levels: np.ndarray | None) -> None:
+    def level_widening(self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray) -> np.ndarray:
+        """(6, 6) what the mount's covariance gains from levels (6,) being learned: each component's
+        part widened by Student's t factor of its redundancy (hec.estimator.solve.level_uncertainty)."""
+        H_inv = np.linalg.inv(H)
+        widening = np.zeros((12, 12))
+        for _, redundancy, H_k in self._components(X, B, H, levels):
+            widening += (student_t_factor(redundancy) - 1.0) * (H_inv @ H_k @ H_inv)
+        return 0.5 * (widening[:6, :6] + widening[:6, :6].T)
+
+    def _note_noise(
+        self, result: Calibration, levels: np.ndarray | None, widening: np.ndarray | None
+    ) -> None:
+        """Note learned levels (6,) on the result and widen its covariance by widening (6, 6)
+        (level_widening), unless the pairs are exact."""
         if levels is None:
             return
         result.diagnostics["learned_pose_sigma"] = levels
+        result.diagnostics["level_widening"] = widening
         if np.all(levels <= 1.001 * VCE_FLOOR * START_SIGMAS):
             result.warnings.append(
                 "the pairs give no covariance for the board pose and fit each other exactly (residuals at "
@@ -365,19 +394,21 @@ class PosePairModel:
             return
         mm = " ".join(f"{v:.3f}" for v in 1e3 * levels[:3])
         deg = " ".join(f"{v:.4f}" for v in np.degrees(levels[3:]))
-        factor = learned_noise_factor(len(self.pairs))
-        result.covariance = factor * result.covariance
+        gain = float(np.trace(widening) / np.trace(result.covariance))
+        result.covariance = result.covariance + widening
         result.warnings.append(
             f"the pairs give no covariance for the board pose: its noise was learned from the data, 1 sigma "
             f"[mm] along the camera's x y z {mm}, [deg] about the board's x y z {deg}; the mount's "
-            f"covariance is widened {factor:.2f}x for the levels being learned from {len(self.pairs)} pairs"
+            f"variance is widened by {100 * gain:.0f} % for the levels being learned from "
+            f"{len(self.pairs)} pairs"
         )
 
     def filter(self, X: np.ndarray, B: np.ndarray, iterated: bool) -> Calibration:
         """The pairs fused one at a time (module doc), at the noise levels batch learns (or the
         pairs' own covariances)."""
         learn = any(p.covariance is None for p in self.pairs)
-        levels = self.batch(X, B).diagnostics.get("learned_pose_sigma") if learn else None
+        learned = self.batch(X, B).diagnostics if learn else {}
+        levels = learned.get("learned_pose_sigma")
         state_cov = np.diag([FILTER_PRIOR_SIGMA[0] ** 2] * 3 + [FILTER_PRIOR_SIGMA[1] ** 2] * 3)
         P = np.zeros((12, 12))
         P[:6, :6] = P[6:, 6:] = state_cov
@@ -396,5 +427,5 @@ class PosePairModel:
                     break
             P = (np.eye(12) - K @ J) @ P
         result = Calibration("ekf", X, P[:6, :6], B, None, [], len(self.pairs), 0)
-        self._note_noise(result, levels)
+        self._note_noise(result, levels, learned.get("level_widening"))
         return result
