@@ -12,6 +12,7 @@ import pytest
 
 from hec.bench.opencv_pairs import (
     EXACT_THRESHOLD,
+    FLANGE_NOISE,
     METHODS,
     MethodRecord,
     opencv_test_pairs,
@@ -111,3 +112,14 @@ def test_the_table_has_a_row_per_method() -> None:
     table = rows(records, 2, noisy=True)
     assert [r[0] for r in table] == list(METHODS)
     assert table[0][1] == "1.5 / 1.95" and table[0][3] == "2/2" and table[0][4] == "6.00 (0 %)"
+
+
+def test_a_component_the_arm_noise_explains_is_not_printed_as_a_learned_zero() -> None:
+    """With the test's flange noise added and declared, the board pose noise learned from 10 pairs can
+    leave a component at nothing (seed 2: along the camera's y): it is said to be explained by the arm's
+    noise, never printed as 0.000."""
+    pairs, _ = opencv_test_pairs(np.random.default_rng(2), 10, noisy=True, robot_noise=True)
+    result = solve("batch", pairs, MethodOptions(), RobotPoseNoise(FLANGE_NOISE[1], FLANGE_NOISE[0]))
+    said = next(w for w in result.warnings if "its noise was learned" in w)
+    assert "x y z " in said and " none " in said and "the declared arm noise explains" in said, said
+    assert "0.000" not in said, said

@@ -392,14 +392,21 @@ class PosePairModel:
                 "pairs; real poses are never exact (were these simulated without noise?)"
             )
             return
-        mm = " ".join(f"{v:.3f}" for v in 1e3 * levels[:3])
-        deg = " ".join(f"{v:.4f}" for v in np.degrees(levels[3:]))
+        # A component at its floor has no scatter beyond what the arm's declared noise explains.
+        floored = levels <= 1.001 * VCE_FLOOR * START_SIGMAS
+        shown = np.r_[1e3 * levels[:3], np.degrees(levels[3:])]
+        texts = [
+            "none" if low else f"{v:.{3 if k < 3 else 4}f}"
+            for k, (v, low) in enumerate(zip(shown, floored, strict=True))
+        ]
         gain = float(np.trace(widening) / np.trace(result.covariance))
         result.covariance = result.covariance + widening
         result.warnings.append(
             f"the pairs give no covariance for the board pose: its noise was learned from the data, 1 sigma "
-            f"[mm] along the camera's x y z {mm}, [deg] about the board's x y z {deg}; the mount's "
-            f"variance is widened by {100 * gain:.0f} % for the levels being learned from "
+            f"[mm] along the camera's x y z {' '.join(texts[:3])}, [deg] about the board's x y z "
+            f"{' '.join(texts[3:])}"
+            + (" ('none': the declared arm noise explains all the scatter there)" if floored.any() else "")
+            + f"; the mount's variance is widened by {100 * gain:.0f} % for the levels being learned from "
             f"{len(self.pairs)} pairs"
         )
 
