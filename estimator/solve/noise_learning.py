@@ -318,9 +318,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     else:
         mount_covariance = uncertainty.mount
     widening = _level_widening(problem, options, final, names, start, P0)
-    prior_distance = None
-    if options.prior is not None:
-        prior_distance = _prior_distance(objective, params, options)
+    prior_distance = None if options.prior is None else _prior_distance(objective, params, options)
     return LearnedNoise(
         declared,
         final.levels,
@@ -366,10 +364,9 @@ def _level_widening(
 def _misfits(
     problem: CalibrationProblem, first: _Pass, ratios: dict[str, float], robot: RobotPoseNoise
 ) -> tuple[bool, bool, bool]:
-    """Whether the declared model fits worse than MISFIT_SCALE times its noise: the corners, the
-    depths, and the flange poses, these only where their chi-square at the level learning started
-    from (ratios, _declared_fit's; robot) is beyond ARM_MISFIT_PROBABILITY (a handful of views has
-    few flange residuals)."""
+    """Whether the corners, the depths and the flange poses fit worse than MISFIT_SCALE times their
+    noise, the flange poses only where their chi-square at the level learning started from (ratios,
+    _declared_fit's; robot) is beyond ARM_MISFIT_PROBABILITY (few views have few flange residuals)."""
     levels = first.levels
     flange = False
     for name, start in (
@@ -386,8 +383,7 @@ def _misfits(
 def _arm_misfits_still(
     problem: CalibrationProblem, calibrated: _Pass, declared: NoiseLevels, robot: RobotPoseNoise
 ) -> bool:
-    """_misfits' verdict on the flange poses (with the arm's kinematics known) at a pass with the
-    camera self-calibrated."""
+    """_misfits' verdict on the flange poses (of a known arm) at a pass with the camera calibrated."""
     ratios, _ = _declared_fit(calibrated.levels, declared, robot, calibrated.factors)
     return problem.kinematics is not None and _misfits(problem, calibrated, ratios, robot)[2]
 
