@@ -4,8 +4,8 @@ has?
 Render fidelity on the realistic cell (models/scenarios/realistic.toml) with one error source at a
 time at its realistic magnitude, and the ideal cell (no model error). Every cell runs the same
 paired trials: trial t draws its random mount and its views from numpy.random.default_rng([seed,
-t]) (the default trajectory of the scenario), so the cells differ only in their error. Each trial
-is rendered, detected and calibrated with the default method
+t]) (the default trajectory of the scenario; RENDER_REDRAWS), so the cells differ only in their
+error. Each trial is rendered, detected and calibrated with the default method
 (hec.estimator.solve.method_names.DEFAULT_METHOD); the fit check's findings
 (hec.estimator.solve.fit_check: advice_<group> for a finding given as advice, finding_holds_<group>
 0 for one reported as "cannot tell apart") are recorded per trial.
@@ -19,7 +19,8 @@ and how often a group was reported as "cannot tell apart"; the default method's 
         [--cache DIR] [--json OUT] [--page PATH.md]
 
 --cache keeps each trial's detected observations (rendering costs more than calibrating), so a
-change to the findings logic can be measured again on the same frames. Exit status 1 when a cell
+change to the findings logic can be measured again on the same frames (keyed by cell, seed and
+trial only: empty it when the simulator or the detector changes). Exit status 1 when a cell
 misses the target.
 """
 
@@ -54,6 +55,9 @@ from hec.sweep.trials import TrialTask, render_inputs
 REALISTIC = Path(__file__).resolve().parents[2] / "models" / "scenarios" / "realistic.toml"
 # A finding holds where its advice names the true source in at least this share of trials.
 TARGET_SHARE = 0.95
+# A random mount can put the camera behind the wrist (no view usable): such a trial is drawn again
+# from default_rng([seed, trial, k]), k = 1, 2, ... up to this many times (the same in every cell).
+RENDER_REDRAWS = 4
 # The self-calibration groups a finding can name (hec.estimator.solve.self_calibration.NUISANCE_GROUPS).
 GROUPS = tuple(WORDS)
 
@@ -126,7 +130,15 @@ def _inputs(cell: FindingsCell, trial: int, seed: int, cache: Path | None) -> tu
         str(Path(scenario.base_dir).resolve()),
         paired=True,
     )
-    inputs = render_inputs(task, scenario, np.random.default_rng(task.seed_list))
+    for redraw in range(RENDER_REDRAWS + 1):
+        try:
+            inputs = render_inputs(
+                task, scenario, np.random.default_rng(task.seed_list + [redraw] * bool(redraw))
+            )
+            break
+        except SweepError:
+            if redraw == RENDER_REDRAWS:
+                raise
     if path is not None:
         write_atomic(path, pickle.dumps(inputs))
     return inputs
