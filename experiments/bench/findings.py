@@ -15,7 +15,7 @@ the image cell, which no self-calibration group describes: the share with no adv
 against TARGET_SHARE; how often the true source was given as advice, how often a wrong group was,
 and how often a group was reported as "cannot tell apart"; the default method's median error.
 
-    nice -n 10 .venv/bin/python -m hec.bench.findings [--trials 20] [--seed 0] [--cells NAME,...]
+    nice -n 10 .venv/bin/python -m hec.bench.findings [--trials 20] [--seed 0] [--views N] [--cells NAME,...]
         [--cache DIR] [--json OUT] [--page PATH.md]
 
 --cache keeps each trial's detected observations (rendering costs more than calibrating), so a
@@ -48,7 +48,7 @@ from hec.estimator.solve.problem import CalibrationInputError, build_problem
 from hec.sim.scenario import load_scenario
 from hec.support.results_page import markdown_table, write_results_page
 from hec.sweep.config import cell_scenario, scenario_defaults
-from hec.sweep.parameters import RENDER
+from hec.sweep.parameters import MIN_WAYPOINTS, RENDER
 from hec.sweep.rows import SweepError
 from hec.sweep.trials import TrialTask, render_inputs
 
@@ -94,8 +94,9 @@ CELLS = (
 )
 
 
-def _scenario(cell: FindingsCell) -> tuple[dict, dict, object]:
-    """The cell's base scenario dict, its sweep parameters and the Scenario (hec.sweep.config)."""
+def _scenario(cell: FindingsCell, views: int | None) -> tuple[dict, dict, object]:
+    """The cell's base scenario dict, its sweep parameters and the Scenario (hec.sweep.config), with
+    the first views views of the trajectory (None: all)."""
     base = load_scenario(REALISTIC)
     data = base.to_dict()
     if cell.board is not None:
@@ -106,17 +107,22 @@ def _scenario(cell: FindingsCell) -> tuple[dict, dict, object]:
         "depth_bias_scale": cell.depth_bias[0],
         "depth_bias_offset_mm": cell.depth_bias[1],
         "mount": "random",
+        "waypoints": views,
     }
     base_dir = str(Path(base.base_dir).resolve())
     return data, params, cell_scenario(data, base_dir, params)
 
 
-def _inputs(cell: FindingsCell, trial: int, seed: int, cache: Path | None) -> tuple:
+def _inputs(cell: FindingsCell, trial: int, seed: int, views: int | None, cache: Path | None) -> tuple:
     """The trial's rendered and detected inputs (hec.sweep.trials.render_inputs), from cache if kept."""
-    path = None if cache is None else cache / f"{cell.name.replace(' ', '-')}-{seed}-{trial}.pickle"
+    path = (
+        None
+        if cache is None
+        else cache / f"{cell.name.replace(' ', '-')}-{seed}-{trial}{_views_key(views)}.pickle"
+    )
     if path is not None and path.exists():
         return pickle.loads(path.read_bytes())
-    data, params, scenario = _scenario(cell)
+    data, params, scenario = _scenario(cell, views)
     task = TrialTask(
         f"{cell.name} {trial}",
         cell.name,
@@ -144,12 +150,16 @@ def _inputs(cell: FindingsCell, trial: int, seed: int, cache: Path | None) -> tu
     return inputs
 
 
-def run_trial(cell: FindingsCell, trial: int, seed: int, cache: Path | None) -> dict:
+def _views_key(views: int | None) -> str:
+    return "" if views is None else f"-{views}views"
+
+
+def run_trial(cell: FindingsCell, trial: int, seed: int, views: int | None, cache: Path | None) -> dict:
     """One trial's record: the groups given as advice, those reported as "cannot tell apart", the
     default method's error (mm, deg); a failure has failure set."""
     record = {"cell": cell.name, "trial": trial, "advice": [], "cannot_tell": [], "failure": ""}
     try:
-        observations, board, intrinsics, robot, arm, X, _ = _inputs(cell, trial, seed, cache)
+        observations, board, intrinsics, robot, arm, X, _ = _inputs(cell, trial, seed, views, cache)
         problem = build_problem(observations, board, intrinsics, robot, arm=arm)
         options = MethodOptions()
         learned = learn_noise(problem, options) if needs_learned_noise(DEFAULT_METHOD, options) else None
@@ -228,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--views", type=int, help="the first VIEWS views of the trajectory (default: all)")
     parser.add_argument("--cells", help="comma-separated cell names (default: every cell)")
     parser.add_argument("--cache", type=Path, help="keep each trial's detected observations here")
     parser.add_argument("--json", type=Path)
@@ -240,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown cell(s) {unknown}; cells: {', '.join(c.name for c in CELLS)}")
         cells = tuple(c for c in CELLS if c.name in names)
-    if args.trials < 1:
-        parser.error("--trials must be at least 1")
+    if args.trials < 1 or (args.views is not None and args.views < MIN_WAYPOINTS):
+        parser.error(f"--trials must be at least 1 and --views at least {MIN_WAYPOINTS}")
     if args.json is not None:
         check_json_path(args.json)
     if args.cache is not None:
@@ -250,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     for cell in cells:
         cell_records = []
         for trial in range(args.trials):
-            record = run_trial(cell, trial, args.seed, args.cache)
+            record = run_trial(cell, trial, args.seed, args.views, args.cache)
             print(
                 f"{cell.name} {trial}: advice {record['advice'] or '-'}, "
                 f"cannot tell {record['cannot_tell'] or '-'}"
@@ -267,13 +278,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         write_json(args.json, {"summaries": summaries, "trials": records})
     if args.page is not None:
-        command = f"python -m hec.bench.findings --trials {args.trials} --seed {args.seed}" + (
-            f" --cells {args.cells}" if args.cells else ""
+        command = (
+            f"python -m hec.bench.findings --trials {args.trials} --seed {args.seed}"
+            + (f" --cells {args.cells}" if args.cells else "")
+            + (f" --views {args.views}" if args.views else "")
         )
         body = [
             "The realistic cell (`models/scenarios/realistic.toml`) with one error source at a time at its "
-            "realistic magnitude, and the ideal cell; render fidelity, a random mount per trial and the "
-            "scenario's default views, the same in every cell (paired trials). Each trial is calibrated with "
+            "realistic magnitude, and the ideal cell; render fidelity, a random mount per trial and "
+            + (
+                "the scenario's default views"
+                if args.views is None
+                else f"the first {args.views} default views"
+            )
+            + ", the same in every cell (paired trials). Each trial is calibrated with "
             f"the default method (`{DEFAULT_METHOD}`) and its self-calibration findings are read: given as "
             'advice (a cause and a fix) or reported as "cannot tell apart". A cell meets the target when the '
             f"advice names only its true source in at least {TARGET_SHARE:.0%} of its trials (on the ideal "
