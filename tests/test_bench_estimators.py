@@ -11,8 +11,8 @@ from hec.estimator.solve.methods import METHODS
 
 def test_benchmark_reports_every_method_case_and_check(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
-    plot = tmp_path / "bench.png"
-    main(["--trials", "3", "--workers", "1", "--timing-rounds", "1", "--json", str(out), "--plot", str(plot)])
+    page = tmp_path / "estimators.md"
+    main(["--trials", "3", "--workers", "1", "--timing-rounds", "1", "--json", str(out), "--page", str(page)])
     data = json.loads(out.read_text())
     assert set(data["summaries"]) == set(CASES)
     rows = data["summaries"]["robot noise"]["methods"]
@@ -22,4 +22,8 @@ def test_benchmark_reports_every_method_case_and_check(tmp_path: Path) -> None:
         assert rows[method]["ratio_translation"] < 2.0 and rows[method]["ratio_rotation"] < 2.0
     assert len(data["acceptance"]) == 2 * (3 + 4) + 2  # accuracy, NEES per case; two OpenCV gains
     assert data["time_s"]["ekf"] > 0.0
-    assert plot.stat().st_size > 10_000
+    assert page.with_suffix(".png").stat().st_size > 10_000
+    text = page.read_text()
+    assert text.startswith("# Estimators against the bound\n")
+    assert "`python -m hec.bench.estimators --trials 3" in text and "## acceptance" in text
+    assert "(estimators.png)" in text and "## time for" in text

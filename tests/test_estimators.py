@@ -67,8 +67,7 @@ def _rms(errors: list[np.ndarray]) -> tuple[float, float]:
 
 def test_accuracy_is_near_the_cramer_rao_bound_and_covariances_are_honest() -> None:
     """Few trials: bounds are loose for the trial count but would catch a real loss of accuracy
-    (the benchmark, experiments/bench_estimators.py, runs 200: 1.03-1.04x, ekf 3.1x / 1.76x
-    better than the best OpenCV method)."""
+    (the benchmark, hec.bench.estimators, runs 200: its page is docs/pages/results/estimators.md)."""
     trials = 24
     compared = (*MODEL_METHODS, *OPENCV_COMPARED)
     errors = {m: [] for m in compared}

@@ -14,6 +14,9 @@ the mean of that many 6-dof values, failures. Then the time per method for 15
 waypoints x 8 markers.
 
     .venv/bin/python -m hec.bench.estimators [--trials 200] [--seed 0] [--workers 2] [--plot F.png]
+        [--page PATH.md]
+
+--page also writes the printed tables as a documentation page (with the plot, PAGE's stem .png, beside it).
 """
 
 from __future__ import annotations
@@ -25,6 +28,9 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import io  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from dataclasses import replace  # noqa: E402
@@ -44,6 +50,7 @@ from hec.estimator.solve.measurement_model import HandEyeState  # noqa: E402
 from hec.estimator.solve.methods import METHODS, run_method  # noqa: E402
 from hec.estimator.solve.observability import observability  # noqa: E402
 from hec.estimator.solve.problem import CalibrationInputError, build_problem  # noqa: E402
+from hec.support.results_page import write_results_page  # noqa: E402
 from hec.support.synthetic_scenes import BOARD, INTRINSICS, T_BASE_BOARD, random_mount, scene  # noqa: E402
 
 EXACT_POSES = RobotPoseNoise(0.0, 0.0)
@@ -248,10 +255,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timing-rounds", type=int, default=20)
     parser.add_argument("--json", help="write the summaries to this file")
     parser.add_argument("--plot", help="write a PNG: error / bound per method, ekf NEES histogram")
+    parser.add_argument("--page", type=Path, help="also write the tables as this Markdown page")
     args = parser.parse_args(argv)
     if args.json:
         check_json_path(Path(args.json))
     summaries = {}
+    printed = io.StringIO()
     with ProcessPoolExecutor(args.workers) as pool:
         for case in CASES:
             jobs = pool.map(run_trial, [case] * args.trials, [args.seed] * args.trials, range(args.trials))
@@ -259,18 +268,35 @@ def main(argv: list[str] | None = None) -> int:
             summaries[case] = summarise(trials)
             if case == "robot noise":
                 ekf_nees = [t["methods"]["ekf"]["nees"] for t in trials if "nees" in t["methods"]["ekf"]]
-            _print_case(case, summaries[case])
-    print("\n## acceptance")
+            with contextlib.redirect_stdout(printed):
+                _print_case(case, summaries[case])
     checks = acceptance(summaries)
-    for text, ok in checks:
-        print(f"{'PASS' if ok else 'FAIL'}  {text}")
     times = time_methods(args.timing_rounds, args.seed)
-    print(f"\n## time for {TIMING_VIEWS} waypoints x 8 markers (median of {args.timing_rounds}, one process)")
-    for method, seconds in times.items():
-        print(f"{method:18s} {1e3 * seconds:8.1f} ms")
+    with contextlib.redirect_stdout(printed):
+        print("\n## acceptance")
+        for text, ok in checks:
+            print(f"{'PASS' if ok else 'FAIL'}  {text}")
+        print(
+            f"\n## time for {TIMING_VIEWS} waypoints x 8 markers "
+            f"(median of {args.timing_rounds}, one process)"
+        )
+        for method, seconds in times.items():
+            print(f"{method:18s} {1e3 * seconds:8.1f} ms")
+    print(printed.getvalue(), end="")
     if args.plot:
         plot(summaries, ekf_nees, args.plot)
         print(f"plot: {args.plot}")
+    if args.page is not None:
+        picture = args.page.with_suffix(".png")
+        plot(summaries, ekf_nees, str(picture))
+        options = argv if argv is not None else sys.argv[1:]
+        command = " ".join(["python -m hec.bench.estimators", *options])
+        body = [
+            __doc__.split("\n\n")[0].replace("\n", " "),
+            f"![error over the bound, NEES]({picture.name})",
+            "```\n" + printed.getvalue().strip("\n") + "\n```",
+        ]
+        print(f"wrote {write_results_page(args.page, 'Estimators against the bound', command, body)}")
     if args.json:
         write_json(Path(args.json), {"summaries": summaries, "acceptance": checks, "time_s": times})
     return 0 if all(ok for _, ok in checks) else 1

@@ -159,7 +159,12 @@ def main(argv: list[str] | None = None) -> int:
     print(summary)
     if args.page is not None:
         argv_text = " ".join(
-            ["python -m hec.bench.paths", f"--placements {args.placements}", f"--seed {args.seed}"]
+            [
+                "python -m hec.bench.paths",
+                f"--placements {args.placements}",
+                f"--seed {args.seed}",
+                f"--page {args.page}",
+            ]
         )
         body = [
             "Every move the session plans (the default trajectory's 17 waypoints, from the rehearsal's "
