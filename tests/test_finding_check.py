@@ -82,3 +82,15 @@ def test_a_finding_beside_a_needed_group_with_no_material_correction_is_advice()
     )
     assert not checks["depth_bias"].significant
     assert checks["board_scale"].significant and checks["board_scale"].holds, checks
+
+
+def test_a_correction_that_only_just_reaches_a_noteworthy_size_is_no_finding() -> None:
+    """A print scale 0.12 % +- 0.03 % off: 4 sigma, beyond the 0.1 % worth reporting, but not with
+    one sigma taken off; 0.14 % +- 0.03 % is."""
+    sigma = [0.0003, 0.0003, 0.002, 0.001]
+    assert not check_findings(_problem(), _learned([0.0012, 0.0, 0.0, 0.0], sigma, 0.0))[
+        "board_scale"
+    ].significant
+    assert check_findings(_problem(), _learned([0.0014, 0.0, 0.0, 0.0], sigma, 0.0))[
+        "board_scale"
+    ].significant
