@@ -158,9 +158,9 @@ def check_findings(problem: CalibrationProblem, learned: LearnedNoise) -> dict[s
         found = found_in[group]
         others = [i for g, r in index.items() if g != group and g in rivals for i in r]
         rho, partner = 0.0, None
-        if others:
+        if others and found.any():
             # The finding as a whole: the combination of the group's parameters its estimate stands out
-            # along (a = C_GG^-1 theta_G), against each parameter of the other needed groups.
+            # along (a = C_GG^-1 theta_G), against each parameter of the rival groups.
             direction = np.linalg.solve(C[np.ix_(rows, rows)], theta[rows])
             spread = np.sqrt(direction @ C[np.ix_(rows, rows)] @ direction)
             along = np.abs(direction @ C[np.ix_(rows, others)]) / (spread * sigma[others])
