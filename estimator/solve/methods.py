@@ -174,6 +174,9 @@ def _account_for_learning(
     if adjusted is not problem and learned.consider_covariance is not None and result.covariance is not None:
         # The method solved with the self-calibrated camera fixed: add what its uncertainty costs.
         result.covariance = result.covariance + learned.consider_covariance
+    if learned.level_widening is not None and result.covariance is not None:
+        # The levels were learned from these data: their own uncertainty widens the mount's.
+        result.covariance = result.covariance + learned.level_widening
     fit = check_fit(learned.measured(problem), learned, len(rejected))
     result.diagnostics["noise"] = learned
     result.diagnostics["fit"] = fit

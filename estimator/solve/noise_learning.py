@@ -43,6 +43,7 @@ from hec.estimator.solve.calibration import MethodOptions, Prior
 from hec.estimator.solve.depth_check import DepthCheck, depth_check, has_depth, misfit, pixels_only
 from hec.estimator.solve.filters import initial_covariance
 from hec.estimator.solve.initialise import initial_state
+from hec.estimator.solve.level_uncertainty import level_widening, row_groups
 from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.noise_levels import NoiseLevels, declared_levels, scaled_problem
 from hec.estimator.solve.prior_scale import name_groups, updated_prior_scale
@@ -98,7 +99,9 @@ class LearnedNoise:
     T_flange_cam's covariance gains from theta's uncertainty, and ratios_after, chi2_dof_after: as
     ratios and chi2_dof, with the adjusted model. mount_covariance: (6, 6) T_flange_cam's covariance at
     the optimum, theta free. theta_prior_scale: per theta name, its prior's sigma learned from the
-    corrections over the declared one (hec.estimator.solve.prior_scale). depth: with depths, whether
+    corrections over the declared one (hec.estimator.solve.prior_scale). level_widening: (6, 6) what
+    T_flange_cam's covariance gains from the levels being learned (hec.estimator.solve.level_uncertainty;
+    not in mount_covariance). depth: with depths, whether
     they agree with the pixels (hec.estimator.solve.depth_check); when they do not, everything here
     is learned from the pixels alone (measured(problem) gives that problem)."""
 
@@ -124,6 +127,7 @@ class LearnedNoise:
     mount_covariance: np.ndarray | None = None
     depth: DepthCheck | None = None
     theta_prior_scale: np.ndarray | None = None
+    level_widening: np.ndarray | None = None
 
     @property
     def theta_sigma(self) -> np.ndarray | None:
@@ -172,21 +176,6 @@ def prior_conflict(data_only: HandEyeState, data_covariance: np.ndarray, prior: 
     T_flange_cam, with both covariances (6, 6) (hec.estimator.geometry.lie convention)."""
     e = pose_minus(prior.T_flange_cam, data_only.T_flange_cam)
     return float(e @ np.linalg.solve(data_covariance[:6, :6] + prior.covariance, e))
-
-
-def _row_groups(
-    objective: BatchObjective | SelfCalibrationObjective, problem: CalibrationProblem
-) -> np.ndarray:
-    """The group index (into GROUPS, -1 for the state's prior rows) of every residual row."""
-    labels = [np.full(objective.n + (6 if objective.prior is not None else 0), -1)]
-    for f in problem.frames:
-        for m in f.markers:
-            labels.append(np.r_[np.zeros(m.pixel_rows, int), np.ones(len(m.whitening) - m.pixel_rows, int)])
-        if objective.with_robot:
-            labels.append(np.array([2, 2, 2, 3, 3, 3]))
-    if isinstance(objective, SelfCalibrationObjective):
-        labels.append(np.full(len(objective.names), -1))
-    return np.concatenate(labels)
 
 
 def learn_noise(problem: CalibrationProblem, options: MethodOptions) -> LearnedNoise:
@@ -269,7 +258,7 @@ def _vce(
         r, J = weighted_jacobian(objective, params, options.robust, optimum)
         hat = hat_diagonal(J, objective.layout)
         if iterations == 1:  # the rows and their groups are the same at every level
-            groups = _row_groups(objective, problem)
+            groups = row_groups(objective, problem)
         squares = np.minimum(r**2, HUBER_SCALE**2) / _CLIPPED_SQUARE if options.robust else r**2
         factors = {}
         for g, name in enumerate(GROUPS):
@@ -322,6 +311,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         mount_covariance = state_covariance(objective, params, options.robust)[:6, :6]
     else:
         mount_covariance = uncertainty.mount
+    widening = _level_widening(problem, options, final, names, start, P0)
     prior_distance = None
     if options.prior is not None:
         prior_distance = _prior_distance(objective, params, options)
@@ -346,7 +336,25 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
         chi2_dof_after=chi2_dof_after,
         mount_covariance=mount_covariance,
         theta_prior_scale=final.prior_scale if names else None,
+        level_widening=widening,
     )
+
+
+def _level_widening(
+    problem: CalibrationProblem,
+    options: MethodOptions,
+    final: _Pass,
+    names: tuple[str, ...],
+    start: HandEyeState,
+    P0: np.ndarray,
+) -> np.ndarray:
+    """(6, 6) level_widening at final's optimum, each group's level worth its redundancy and PRIOR_DOF."""
+    plain = BatchObjective(problem, start, P0, options.prior, declared=final.declared)
+    objective = _objective(plain, final.levels, names, final.prior_scale)
+    _, J = weighted_jacobian(objective, final.params, options.robust)
+    to_local = start.plus_jacobian(final.params[: start.dim])[:6, :6]
+    dof = {g: final.factors[n][1] + PRIOR_DOF for g, n in enumerate(GROUPS) if n in final.factors}
+    return level_widening(J, row_groups(objective, problem), dof, to_local)
 
 
 def _misfits(

@@ -15,10 +15,11 @@ easy_handeye2 writes them), the board pose's noise is learned from the residuals
 components, one per axis of its perturbation (translation along and rotation about the camera's
 and the board's axes: a PnP pose is far less certain along the line of sight), by Foerstner's
 variance component estimation with the redundancies of the fit, and the result says so. A level
-learned from few pairs is itself uncertain: each of the six has on average n - 2 degrees of
-freedom (6 n residuals, 12 parameters), and the mount's error over a learned sigma follows
-Student's t rather than the normal, whose variance is nu / (nu - 2) times larger; the learned
-covariance is widened by that factor (1.33 for 10 pairs, 1.13 for 20).
+learned from few pairs is itself uncertain: each of the six has its redundancy as degrees of
+freedom (on average n - 2: 6 n residuals, 12 parameters), and the part of the mount's error its
+noise carries follows Student's t rather than the normal, whose variance is nu / (nu - 2) times
+larger; each component's part of the mount's covariance is widened by its factor
+(level_widening; on average 1.33 for 10 pairs, 1.13 for 20).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ import time
 
 import cv2
 import numpy as np
+from scipy.stats import norm as normal
+from scipy.stats import t as student_t
 
 from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.geometry.lie import pose_minus, pose_plus, skew, so3_right_jacobian_inverse
@@ -35,6 +38,7 @@ from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import OPENCV_METHODS, ROBOT_WORLD_METHODS
 from hec.estimator.solve.calibration import Calibration, MethodOptions
 from hec.estimator.solve.initialise import MIN_AXIS_SPREAD, mean_pose, rotation_spread
+from hec.estimator.solve.level_uncertainty import student_t_factor
 from hec.estimator.solve.misfit import FRAMES_NAMED, MISFIT_RATIO
 from hec.estimator.solve.problem import MIN_FRAMES, CalibrationInputError
 
@@ -47,8 +51,10 @@ START_SIGMAS = np.array([1e-3] * 3 + [np.radians(0.1)] * 3)
 VCE_TOLERANCE = 1e-4
 VCE_ITERATIONS = 50
 # A learned component never goes below this fraction of its start (an axis whose scatter the robot
-# noise carried through already explains would otherwise shrink to zero and stop the iteration).
-VCE_FLOOR = 1e-6
+# noise carried through already explains would otherwise shrink to zero and stop the iteration; and
+# exact pairs at a floor far below this leave the filters' innovation covariance, against their wide
+# prior, singular to working precision).
+VCE_FLOOR = 1e-4
 # A tracking pose's noise, as a fraction of the viewing distance (a PnP pose along its line of sight
 # from ordinary corners), for the misfit check.
 TRACKING_NOISE_FRACTION = 0.005
@@ -62,15 +68,21 @@ SCALE_UNRESOLVED = 0.01
 GN_ITERATIONS = 50
 # The filters' prior around the Park solution: wide, it adds no information.
 FILTER_PRIOR_SIGMA = (0.1, 0.5)  # metres, radians
-# Student's t variance factor nu / (nu - 2) is infinite at 2 degrees of freedom: below this many, this one.
-MAX_LEARNED_NOISE_FACTOR = 3.0
 
 
 def learned_noise_factor(pairs: int) -> float:
-    """The variance factor of a mount whose board pose noise was learned from pairs pairs: nu / (nu - 2)
-    with nu = pairs - 2 (module doc), at most MAX_LEARNED_NOISE_FACTOR."""
-    nu = pairs - 2
-    return MAX_LEARNED_NOISE_FACTOR if nu <= 3 else min(nu / (nu - 2), MAX_LEARNED_NOISE_FACTOR)
+    """The variance factor of a mount whose board pose noise was learned from pairs pairs: Student's t's
+    nu / (nu - 2) with nu = pairs - 2 (module doc)."""
+    return student_t_factor(pairs - 2)
+
+
+def scale_threshold(pairs: int, learned: bool) -> float:
+    """How many (learned-level) sigmas a tracking scale must be from 1 to be named: SCALE_SIGNIFICANT,
+    or with the levels learned from pairs pairs the quantile of Student's t (nu = pairs - 2) that is
+    exceeded as rarely as the normal's SCALE_SIGNIFICANT (a level from 10 pairs is often too small)."""
+    if not learned:
+        return SCALE_SIGNIFICANT
+    return float(student_t.isf(normal.sf(SCALE_SIGNIFICANT), max(pairs - 2, 1)))
 
 
 def solve_pose_pairs(
@@ -142,14 +154,15 @@ def pose_pair_misfit(pairs: list[PosePair], result: Calibration, robot_noise: Ro
 
 def tracking_bias_warning(pairs: list[PosePair], robot_noise: RobotPoseNoise) -> str | None:
     """A warning when the tracking poses' translations read a scale off what the robot's motions give
-    (PosePairModel.tracking_scale, beyond SCALE_SIGNIFICANT sigmas and SCALE_NOTEWORTHY), sized at
-    the pairs' median viewing distance; None when the data show none."""
+    (PosePairModel.tracking_scale, beyond scale_threshold sigmas and SCALE_NOTEWORTHY), sized at the
+    pairs' median viewing distance (its sigma widened as the mount's for learned levels); None when
+    the data show none."""
     model = PosePairModel(pairs, robot_noise)
     X, B = opencv_pose_pairs(pairs, "opencv-park")
     optimum = model.batch(X, B)
-    scale, sigma = model.tracking_scale(
-        optimum.T_flange_cam, optimum.T_base_board, optimum.diagnostics.get("learned_pose_sigma")
-    )
+    levels = optimum.diagnostics.get("learned_pose_sigma")
+    scale, sigma = model.tracking_scale(optimum.T_flange_cam, optimum.T_base_board, levels)
+    threshold = scale_threshold(len(pairs), levels is not None)
     distance = float(np.median([np.linalg.norm(p.T_cam_board[:3, 3]) for p in pairs]))
     if sigma > SCALE_UNRESOLVED:
         return (
@@ -159,8 +172,9 @@ def tracking_bias_warning(pairs: list[PosePair], robot_noise: RobotPoseNoise) ->
             + " (views at one distance), and such a scale moves the mount along the line of sight "
             "unseen; add views nearer to and farther from the board to measure it"
         )
-    if abs(scale - 1.0) <= max(SCALE_SIGNIFICANT * sigma, SCALE_NOTEWORTHY):
+    if abs(scale - 1.0) <= max(threshold * sigma, SCALE_NOTEWORTHY):
         return None
+    sigma *= np.sqrt(learned_noise_factor(len(pairs))) if levels is not None else 1.0
     return (
         f"the tracking poses' translations read {100 * (scale - 1.0):+.2f} % (+-{100 * sigma:.2f} %) off "
         "what the robot's motions give: a bias common to them (their camera's focal length, the board's "
@@ -317,12 +331,27 @@ class PosePairModel:
             X, B, H, iterations = self._gauss_newton(X, B, levels)
         result = Calibration("batch", X, np.linalg.inv(H)[:6, :6], B, None, [], len(self.pairs), 0)
         result.diagnostics["iterations"] = iterations
-        self._note_noise(result, levels)
+        widening = None if levels is None else self.level_widening(X, B, H, levels)
+        self._note_noise(result, levels, widening)
         return result
 
     def _learned_levels(self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray) -> np.ndarray:
         """Foerstner's variance component update of the per-axis sigmas levels (6,): each component's
         weighted squared residuals over its redundancy."""
+        out = [
+            sigma * np.sqrt(max(weighted, 0.0) / max(redundancy, 1e-12))
+            for sigma, (weighted, redundancy, _) in zip(
+                levels, self._components(X, B, H, levels), strict=True
+            )
+        ]
+        return np.maximum(out, VCE_FLOOR * START_SIGMAS)
+
+    def _components(
+        self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray
+    ) -> list[tuple[float, float, np.ndarray]]:
+        """Per component of levels (6,): its weighted squared residuals, its redundancy and its part of
+        the information's sandwich, H_k (12, 12): inv(H) H_k inv(H) is what its noise adds to the
+        state's covariance."""
         r, J, J_A = self.stacked(X, B)
         covs = self.measurement_covariances(J_A, levels)
         W = np.linalg.inv(covs)
@@ -333,16 +362,29 @@ class PosePairModel:
             part[k] = sigma**2
             W_k = W @ (part[:, None] * np.eye(6)) @ W  # d(inverse covariance) direction of component k
             weighted = float(np.einsum("ni,nij,nj->", r, W_k, r))
-            redundancy = float(np.einsum("nij,nji->", W_k, covs)) - float(
-                np.trace(H_inv @ np.einsum("nji,njk,nkl->il", J, W_k, J))
-            )
-            out.append(sigma * np.sqrt(max(weighted, 0.0) / max(redundancy, 1e-12)))
-        return np.maximum(out, VCE_FLOOR * START_SIGMAS)
+            H_k = np.einsum("nji,njk,nkl->il", J, W_k, J)
+            redundancy = float(np.einsum("nij,nji->", W_k, covs)) - float(np.trace(H_inv @ H_k))
+            out.append((weighted, redundancy, H_k))
+        return out
 
-    def _note_noise(self, result: Calibration, levels: np.ndarray | None) -> None:
+    def level_widening(self, X: np.ndarray, B: np.ndarray, H: np.ndarray, levels: np.ndarray) -> np.ndarray:
+        """(6, 6) what the mount's covariance gains from levels (6,) being learned: each component's
+        part widened by Student's t factor of its redundancy (hec.estimator.solve.level_uncertainty)."""
+        H_inv = np.linalg.inv(H)
+        widening = np.zeros((12, 12))
+        for _, redundancy, H_k in self._components(X, B, H, levels):
+            widening += (student_t_factor(redundancy) - 1.0) * (H_inv @ H_k @ H_inv)
+        return 0.5 * (widening[:6, :6] + widening[:6, :6].T)
+
+    def _note_noise(
+        self, result: Calibration, levels: np.ndarray | None, widening: np.ndarray | None
+    ) -> None:
+        """Note learned levels (6,) on the result and widen its covariance by widening (6, 6)
+        (level_widening), unless the pairs are exact."""
         if levels is None:
             return
         result.diagnostics["learned_pose_sigma"] = levels
+        result.diagnostics["level_widening"] = widening
         if np.all(levels <= 1.001 * VCE_FLOOR * START_SIGMAS):
             result.warnings.append(
                 "the pairs give no covariance for the board pose and fit each other exactly (residuals at "
@@ -350,21 +392,30 @@ class PosePairModel:
                 "pairs; real poses are never exact (were these simulated without noise?)"
             )
             return
-        mm = " ".join(f"{v:.3f}" for v in 1e3 * levels[:3])
-        deg = " ".join(f"{v:.4f}" for v in np.degrees(levels[3:]))
-        factor = learned_noise_factor(len(self.pairs))
-        result.covariance = factor * result.covariance
+        # A component at its floor has no scatter beyond what the arm's declared noise explains.
+        floored = levels <= 1.001 * VCE_FLOOR * START_SIGMAS
+        shown = np.r_[1e3 * levels[:3], np.degrees(levels[3:])]
+        texts = [
+            "none" if low else f"{v:.{3 if k < 3 else 4}f}"
+            for k, (v, low) in enumerate(zip(shown, floored, strict=True))
+        ]
+        gain = float(np.trace(widening) / np.trace(result.covariance))
+        result.covariance = result.covariance + widening
         result.warnings.append(
             f"the pairs give no covariance for the board pose: its noise was learned from the data, 1 sigma "
-            f"[mm] along the camera's x y z {mm}, [deg] about the board's x y z {deg}; the mount's "
-            f"covariance is widened {factor:.2f}x for the levels being learned from {len(self.pairs)} pairs"
+            f"[mm] along the camera's x y z {' '.join(texts[:3])}, [deg] about the board's x y z "
+            f"{' '.join(texts[3:])}"
+            + (" ('none': the declared arm noise explains all the scatter there)" if floored.any() else "")
+            + f"; the mount's variance is widened by {100 * gain:.0f} % for the levels being learned from "
+            f"{len(self.pairs)} pairs"
         )
 
     def filter(self, X: np.ndarray, B: np.ndarray, iterated: bool) -> Calibration:
         """The pairs fused one at a time (module doc), at the noise levels batch learns (or the
         pairs' own covariances)."""
         learn = any(p.covariance is None for p in self.pairs)
-        levels = self.batch(X, B).diagnostics.get("learned_pose_sigma") if learn else None
+        learned = self.batch(X, B).diagnostics if learn else {}
+        levels = learned.get("learned_pose_sigma")
         state_cov = np.diag([FILTER_PRIOR_SIGMA[0] ** 2] * 3 + [FILTER_PRIOR_SIGMA[1] ** 2] * 3)
         P = np.zeros((12, 12))
         P[:6, :6] = P[6:, 6:] = state_cov
@@ -383,5 +434,5 @@ class PosePairModel:
                     break
             P = (np.eye(12) - K @ J) @ P
         result = Calibration("ekf", X, P[:6, :6], B, None, [], len(self.pairs), 0)
-        self._note_noise(result, levels)
+        self._note_noise(result, levels, learned.get("level_widening"))
         return result

@@ -7,7 +7,9 @@ through the nominal mount. It is kept when every marker lies inside the image wi
 (predicted with the nominal camera and board) and, given the arm's nominal kinematics, the flange
 pose is reachable within the joint limits (and, given one, inside the workspace box). Its
 information is what one exact frame of it adds to the batch state (mount, board pose), with the
-flange pose noise marginalised (hec.estimator.solve.observability.frame_information).
+flange pose noise marginalised (hec.estimator.solve.observability.frame_information); on a cell that
+self-calibrates, to that state and the self-calibration corrections
+(hec.estimator.solve.self_calibrated_planning), eliminated with their priors.
 
 Eye-to-hand (setup 'eye-to-hand') the camera is fixed and the board rides on the flange: the same
 functions take T_flange_cam = T_base_cam and T_base_board = T_flange_board (the roles swapped,
@@ -147,15 +149,19 @@ def view_informations(
 
 
 def eliminate_board(state_information: np.ndarray) -> np.ndarray:
-    """(..., 6, 6) information of the mount from (..., 12, 12) state informations: the board pose
-    eliminated (Schur complement)."""
+    """(..., 6, 6) information of the mount from (..., d, d) state informations, the mount first: the
+    rest (the board pose, and any self-calibration corrections after it) eliminated (Schur
+    complement)."""
     A, B, C = state_information[..., :6, :6], state_information[..., :6, 6:], state_information[..., 6:, 6:]
     return A - B @ np.linalg.solve(C, np.swapaxes(B, -1, -2))
 
 
 def _weak_prior(dim: int) -> np.ndarray:
-    sigmas = np.tile(np.r_[np.full(3, WEAK_PRIOR_M), np.full(3, WEAK_PRIOR_RAD)], dim // 6)
-    return np.diag(1.0 / sigmas**2)
+    """(dim, dim) WEAK_PRIOR_M, WEAK_PRIOR_RAD on the mount and the board pose, nothing after them."""
+    weak = np.zeros((dim, dim))
+    sigmas = np.tile(np.r_[np.full(3, WEAK_PRIOR_M), np.full(3, WEAK_PRIOR_RAD)], 2)
+    weak[:12, :12] = np.diag(1.0 / sigmas**2)
+    return weak
 
 
 def _scores(mount: np.ndarray, criterion: str, units: np.ndarray) -> np.ndarray:
@@ -170,8 +176,8 @@ def _scores(mount: np.ndarray, criterion: str, units: np.ndarray) -> np.ndarray:
 
 
 def predicted_sigmas(state_information: np.ndarray) -> tuple[float, float]:
-    """RSS 1-sigmas of T_flange_cam (mm, deg) from a (12, 12) state information; inf when the mount
-    is not determined."""
+    """RSS 1-sigmas of T_flange_cam (mm, deg) from a (d, d) state information (the mount first, with
+    any priors it has); inf when the mount is not determined."""
     mount = eliminate_board(state_information)
     eigenvalues = np.linalg.eigvalsh(mount)
     if eigenvalues[0] <= 1e-9 * max(eigenvalues[-1], 1e-300):
@@ -187,10 +193,14 @@ def plan_views(
     target_sigma: tuple[float, float] | None = None,
     accept: Callable[[int], bool] | None = None,
     recorded: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> list[PlanStep]:
-    """Candidates chosen greedily from (n, 12, 12) informations (view_informations), each at most
-    once, up to max_views or until the predicted RSS 1-sigmas reach target_sigma (mm, deg).
-    recorded: (12, 12) information of the views already taken, added to the chosen ones'.
+    """Candidates chosen greedily from (n, d, d) informations (view_informations: d = 12;
+    hec.estimator.solve.self_calibrated_planning: the self-calibration corrections after the board
+    pose), each at most once, up to max_views or until the predicted RSS 1-sigmas reach
+    target_sigma (mm, deg). recorded: (d, d) information of the views already taken, added to the
+    chosen ones'. prior: (d, d) information of the corrections' priors, part of every criterion and
+    prediction (the corrections are eliminated with it).
     The worst-direction criterion weighs translation and rotation by target_sigma (default
     0.15 mm and 0.015 deg). accept: asked of the best candidate before it is taken (a costly
     check, such as inverse kinematics, run only on the candidates that would be chosen); a
@@ -199,9 +209,11 @@ def plan_views(
         raise ValueError(f"unknown criterion {criterion!r}: one of {', '.join(CRITERIA)}")
     target_mm, target_deg = target_sigma if target_sigma is not None else (0.15, 0.015)
     units = np.r_[np.full(3, 1e-3 * target_mm), np.full(3, np.radians(target_deg))]
-    n = len(informations)
-    total = np.zeros((12, 12)) if recorded is None else recorded.copy()
-    weak = _weak_prior(12)
+    n, dim = len(informations), informations.shape[-1]
+    total = np.zeros((dim, dim)) if recorded is None else recorded.copy()
+    if prior is not None:
+        total = total + prior
+    weak = _weak_prior(dim)
     free = np.ones(n, bool)
     steps: list[PlanStep] = []
     while len(steps) < max_views and free.any():

@@ -76,6 +76,11 @@ def run(args: argparse.Namespace) -> int:
         args.corner_sigma_px,
         args.seed,
     )
+    if plan.groups:
+        print(
+            "the cell self-calibrates: views chosen by the mount's information with these estimated "
+            f"too: {', '.join(g.replace('_', ' ') for g in plan.groups)}"
+        )
     print(f"{plan.usable} of {plan.candidates} candidates hold the whole board in view; {plan.criterion}:")
     for k, view in enumerate(plan.views):
         print(f"  {k + 1:2d}  {view.label:40s} {view.sigma}")

@@ -43,7 +43,15 @@ from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import METHODS
 from hec.estimator.solve.verify import spread_views
 from hec.session import preview
-from hec.session.adaptive import DEFAULT_MAX_VIEWS, POOL_CANDIDATES, AdaptiveViews, TargetError, sigma_target
+from hec.session.adaptive import (
+    DEFAULT_MAX_VIEWS,
+    POOL_CANDIDATES,
+    AdaptiveViews,
+    SelfCalibratedPlanning,
+    TargetError,
+    scenario_planning,
+    sigma_target,
+)
 from hec.session.cell_config import CellConfig, CellConfigError, load_cell_config
 from hec.session.plan_text import motion_time_s, print_plan
 from hec.session.session import LiveEstimate, SessionCell, run_session
@@ -257,7 +265,7 @@ def _record_sim(args: argparse.Namespace) -> int:
         if args.dry_run:
             print("dry run: nothing moved")
             return 0
-        return _session(args, cell, moves, extra, truth, _nominal(cell), forward_fk)
+        return _session(args, cell, moves, extra, truth, _nominal(cell), forward_fk, planning=_planning(cell))
     finally:
         cell.close()
 
@@ -266,6 +274,11 @@ def _nominal(cell: SimulatedCell) -> tuple[np.ndarray, np.ndarray]:
     """A simulated cell's scenario's nominal T_flange_cam and T_base_board (4, 4)."""
     scenario = cell.cell.scenario
     return scenario.mount.transform(), scenario.board.transform()
+
+
+def _planning(cell: SimulatedCell) -> SelfCalibratedPlanning | None:
+    """What an adaptive session marginalises on a simulated cell (scenario_planning)."""
+    return scenario_planning(cell.cell.scenario)
 
 
 def _record_sim_adaptive(
@@ -286,7 +299,7 @@ def _record_sim_adaptive(
     if args.dry_run:
         print("dry run: nothing moved")
         return 0
-    return _session(args, cell, [], extra, truth, _nominal(cell), pool=pool)
+    return _session(args, cell, [], extra, truth, _nominal(cell), pool=pool, planning=_planning(cell))
 
 
 def _record_hardware(
@@ -386,11 +399,13 @@ def _session(
     nominal: tuple[np.ndarray, np.ndarray] | None = None,
     forward_fk: Callable[[np.ndarray], np.ndarray] | None = None,
     pool: list[Waypoint] | None = None,
+    planning: SelfCalibratedPlanning | None = None,
 ) -> int:
     """Record the planned moves into --out (or resume it), then report; `hec run` calibrates.
     With a target the session is adaptive: its pool is pool, else the usable planned moves'
     waypoints (flange poses from forward_fk for joint waypoints); nominal: the (T_flange_cam,
-    T_base_board) (4, 4) its first views are chosen at (None: spread over the pool)."""
+    T_base_board) (4, 4) its first views are chosen at (None: spread over the pool); planning: the
+    self-calibration groups its choice marginalises (None: the mount and board pose alone)."""
     target = sigma_target(args)
     if target is not None and extra.get("setup", EYE_IN_HAND) != EYE_IN_HAND:
         raise RecordError(
@@ -425,7 +440,11 @@ def _session(
             print(f"note: {note}", file=sys.stderr)
         target_sigma = None if target is None else (target.sigma_mm, target.sigma_deg)
         live = None if args.no_live else LiveEstimate(recorder.root, target_sigma=target_sigma)
-        adaptive = None if target is None else AdaptiveViews(cell, pool, live, target, nominal)
+        adaptive = (
+            None
+            if target is None
+            else AdaptiveViews(cell, pool, live, target, nominal, self_calibration=planning)
+        )
         outcome = run_session(cell, moves if adaptive is None else adaptive, recorder, live)
     print(f"dataset: {outcome.root} ({outcome.total} frames, {outcome.recorded} recorded now)")
     if outcome.stopped is not None:

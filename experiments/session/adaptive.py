@@ -21,6 +21,10 @@ when added to the information of the frames recorded so far.
   candidates' predicted informations, so the first views are the planner's choice at the nominal
   values. A pool without nominal values (the real cell) starts with views spread over the pool
   (hec.estimator.solve.verify.spread_views), then the rest in order, until an estimate exists.
+- A cell that self-calibrates (SelfCalibratedPlanning: in simulation, a scenario with model errors
+  on) scores on the mount's information with the self-calibration groups marginalised
+  (hec.estimator.solve.self_calibrated_planning, their declared priors); the recorded frames'
+  information is then the chosen candidates' predicted one at the current linearisation point.
 - Each chosen candidate goes through cell.plan([it]) (IK, limits, the cell's checks); a rejected one is
   dropped from the pool and the next best is tried.
 
@@ -37,9 +41,11 @@ import argparse
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hec.estimator.geometry.kinematics import ROBOTS, URKinematics
 from hec.estimator.geometry.transforms import pose_error
 from hec.estimator.geometry.waypoints import PlannedMove, Waypoint
 from hec.estimator.observe.synthetic import SyntheticNoise
@@ -47,9 +53,13 @@ from hec.estimator.solve.calibration import Calibration
 from hec.estimator.solve.measurement_model import HandEyeState
 from hec.estimator.solve.observability import state_information
 from hec.estimator.solve.problem import MIN_FRAMES, build_problem
+from hec.estimator.solve.self_calibrated_planning import planning_groups, self_calibrated_informations
 from hec.estimator.solve.verify import spread_views
 from hec.estimator.solve.view_planning import plan_views, view_informations
 from hec.session.session import LiveEstimate, SessionCell, rss_sigmas
+
+if TYPE_CHECKING:
+    from hec.sim.scenario import Scenario
 
 # Candidates drawn for a simulated cell's pool.
 POOL_CANDIDATES = 300
@@ -63,6 +73,25 @@ CORNER_SIGMA_PX = 0.1
 CRITERION = "d-optimal"
 DEFAULT_MAX_VIEWS = 40
 MIN_STOP_VIEWS = 6  # the stop rule applies from this many recorded views on
+
+
+@dataclass(frozen=True)
+class SelfCalibratedPlanning:
+    """What a self-calibrating cell's view choice marginalises: groups (NUISANCE_GROUPS) and the
+    arm's nominal kinematics (for the kinematics group, else None)."""
+
+    groups: tuple[str, ...]
+    kinematics: URKinematics | None = None
+
+
+def scenario_planning(scenario: Scenario) -> SelfCalibratedPlanning | None:
+    """A simulated scenario's: every planning_groups group when it switches model errors on (the
+    arm's kinematics with its arm errors), None when it switches none on."""
+    if not scenario.errors.any_enabled():
+        return None
+    arm = scenario.errors.arm.enabled
+    groups = planning_groups(scenario.board_definition(), arm)
+    return SelfCalibratedPlanning(groups, ROBOTS[scenario.robot] if arm else None)
 
 
 class TargetError(ValueError):
@@ -138,7 +167,8 @@ class AdaptiveViews:
 
     pool: candidate waypoints, each with its flange pose T_base_flange (4, 4), base frame (joint waypoints
     also carry it, from the nominal kinematics). nominal: (T_flange_cam, T_base_board) (4, 4) to choose
-    the first views at, or None. After the iteration ends, stop says why: 'target reached',
+    the first views at, or None. self_calibration: the groups to marginalise, None for the mount and
+    board pose alone. After the iteration ends, stop says why: 'target reached',
     'maximum views' or 'pool exhausted'."""
 
     def __init__(
@@ -149,8 +179,11 @@ class AdaptiveViews:
         target: SigmaTarget,
         nominal: tuple[np.ndarray, np.ndarray] | None = None,
         say: Callable[[str], None] = print,
+        self_calibration: SelfCalibratedPlanning | None = None,
     ) -> None:
         self.cell, self.pool, self.live, self.target, self.say = cell, pool, live, target, say
+        self.self_calibration = self_calibration
+        self._prior: np.ndarray | None = None  # the corrections' priors, with self_calibration
         self.max_moves = target.max_views
         self.free = np.ones(len(pool), bool)  # neither chosen nor rejected by the cell
         self.visited: list[int] = []  # pool indices recorded, in order
@@ -216,7 +249,8 @@ class AdaptiveViews:
 
     def record(self) -> dict:
         """dataset.json's session fields: the pool's size and the adaptive block (target, outcome,
-        each view's RSS sigmas, the candidates the cell rejected)."""
+        the self-calibration groups the choice marginalised, each view's RSS sigmas, the candidates
+        the cell rejected)."""
         rss = self.rss()
         return {
             "waypoints": len(self.pool),
@@ -225,6 +259,9 @@ class AdaptiveViews:
                 "target_sigma_deg": self.target.sigma_deg,
                 "max_views": self.target.max_views,
                 "criterion": CRITERION,
+                "self_calibration_groups": []
+                if self.self_calibration is None
+                else list(self.self_calibration.groups),
                 "candidates": len(self.pool),
                 "outcome": self.stop,
                 "reached": self.reached,
@@ -261,7 +298,7 @@ class AdaptiveViews:
             return found is not None
 
         candidates = np.array([self._informations[k] for k in offered])
-        plan_views(candidates, 1, CRITERION, None, accept, recorded)
+        plan_views(candidates, 1, CRITERION, None, accept, recorded, self._prior)
         return chosen[0] if chosen else None
 
     def _opening_order(self) -> list[int]:
@@ -286,14 +323,15 @@ class AdaptiveViews:
         rejected = {k for k, _ in self.rejected}
         kept = [k for k in range(len(self.pool)) if k not in rejected]
         noise = SyntheticNoise(point.corner_sigma_px, self.live.depth_noise, self.live.robot_noise)
-        usable, informations = view_informations(
-            [self.pool[k] for k in kept],
-            self.live.board,
-            self.live.intrinsics,
-            point.T_flange_cam,
-            point.T_base_board,
-            noise,
-        )
+        nominal = (self.live.board, self.live.intrinsics, point.T_flange_cam, point.T_base_board, noise)
+        waypoints = [self.pool[k] for k in kept]
+        if self.self_calibration is None:
+            usable, informations = view_informations(waypoints, *nominal)
+        else:
+            groups, kinematics = self.self_calibration.groups, self.self_calibration.kinematics
+            usable, informations, self._prior = self_calibrated_informations(
+                waypoints, *nominal, groups, kinematics
+            )
         self._informations = {kept[i]: info for i, info in zip(usable, informations, strict=True)}
         self._at = point
         self.relinearisations += 1
@@ -304,16 +342,17 @@ class AdaptiveViews:
         )
 
     def _recorded_information(self, estimate: Calibration | None) -> np.ndarray:
-        """(12, 12) information of the frames so far: their detections at the running estimate, or,
-        before it exists, the chosen candidates' predicted informations."""
-        if estimate is not None and estimate.T_base_board is not None:
+        """(d, d) information of the frames so far: their detections at the running estimate, or,
+        before it exists or with self_calibration, the chosen candidates' predicted informations."""
+        if self.self_calibration is None and estimate is not None and estimate.T_base_board is not None:
             problem = build_problem(
                 self.live.observations, self.live.board, self.live.intrinsics, self.live.robot_noise
             )
             state = HandEyeState(estimate.T_flange_cam, T_base_board=estimate.T_base_board)
             return state_information(problem, state)
+        dim = 12 if self._prior is None else len(self._prior)
         return sum(
-            (self._informations[k] for k in self.visited if k in self._informations), np.zeros((12, 12))
+            (self._informations[k] for k in self.visited if k in self._informations), np.zeros((dim, dim))
         )
 
     def _corner_sigma_px(self) -> float:

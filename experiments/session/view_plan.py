@@ -11,7 +11,13 @@ noise, and a corner noise the detector reports (corner_sigma_px). They come from
 - a real cell's calibration (a calibration file, a cell file and the dataset it came from): its
   mount and board pose, the dataset's camera, board, depth noise and viewing distance, the cell
   file's arm, pose noise, joint limits and workspace box (nominal kinematics; no renderer).
-A refused view is passed over and the next best taken."""
+A refused view is passed over and the next best taken.
+
+A cell that self-calibrates plans on the whole state the default method estimates there
+(hec.estimator.solve.self_calibrated_planning): a scenario with model errors switched on, every
+group planning_groups names (the arm's kinematics when its arm errors are on); a real cell's
+calibration that self-calibrated, the groups it kept. Otherwise the plan is on the mount and the
+board pose alone."""
 
 from __future__ import annotations
 
@@ -25,7 +31,7 @@ import numpy as np
 from hec.estimator.common.files import check_output_file, refuse_writing_over_inputs, write_atomic
 from hec.estimator.common.setups import BOARD_POSE_NAMES, EYE_IN_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
-from hec.estimator.geometry.kinematics import IK_RESTARTS, ROBOTS
+from hec.estimator.geometry.kinematics import IK_RESTARTS, ROBOTS, URKinematics
 from hec.estimator.geometry.transforms import invert
 from hec.estimator.geometry.waypoints import (
     Waypoint,
@@ -34,6 +40,8 @@ from hec.estimator.geometry.waypoints import (
     waypoint_csv,
 )
 from hec.estimator.observe.synthetic import SyntheticNoise
+from hec.estimator.solve.self_calibrated_planning import planning_groups, self_calibrated_informations
+from hec.estimator.solve.self_calibration import NUISANCE_GROUPS
 from hec.estimator.solve.setup_roles import model_pose
 from hec.estimator.solve.view_planning import (
     CRITERIA,
@@ -63,7 +71,9 @@ class PlanningCell:
     """What planning needs of a cell: the board and camera, the nominal T_flange_cam and T_base_board
     ((4, 4), metres; eye-to-hand T_base_cam and T_flange_board, hec.estimator.solve.setup_roles), a
     frame's noise, the nominal distance to the board (m), accepts (True when the arm can take a view
-    from the last view accepted), the views to compare with (name, waypoints) and the set-up."""
+    from the last view accepted), the views to compare with (name, waypoints) and the set-up. A cell
+    that self-calibrates: groups (NUISANCE_GROUPS planned for), the arm's nominal kinematics and the
+    joints its views start from (for the kinematics group)."""
 
     board: Target
     intrinsics: CameraIntrinsics
@@ -74,6 +84,19 @@ class PlanningCell:
     accepts: Callable[[Waypoint], bool]
     reference: tuple[str, list[Waypoint]]
     setup: str = EYE_IN_HAND
+    groups: tuple[str, ...] = ()
+    kinematics: URKinematics | None = None
+    start_joints: np.ndarray | None = None
+
+    def informations(self, waypoints: list[Waypoint]) -> tuple[list[int], np.ndarray, np.ndarray | None]:
+        """The usable waypoints (indices), their (n, d, d) informations and the (d, d) prior on the
+        self-calibration corrections (None without them), at the nominal values."""
+        nominal = (self.board, self.intrinsics, self.T_flange_cam, self.T_base_board, self.noise)
+        if not self.groups:
+            return *view_informations(waypoints, *nominal, setup=self.setup), None
+        return self_calibrated_informations(
+            waypoints, *nominal, self.groups, self.kinematics, self.start_joints, setup=self.setup
+        )
 
 
 @dataclass(frozen=True)
@@ -91,7 +114,8 @@ class ViewPlan:
     """A plan: the views in order (the last step's predicted RSS 1-sigmas in steps[-1]), how many
     candidates were drawn and how many held the whole board in view, the count asked, the target
     (mm, deg) and whether it was reached (None without one), the reference views' predicted
-    1-sigmas (name, mm, deg) and path, the waypoint file written (None when not asked)."""
+    1-sigmas (name, mm, deg) and path, the waypoint file written (None when not asked), and the
+    self-calibration groups the mount's information was marginalised over (() when none)."""
 
     views: tuple[PlannedView, ...]
     steps: tuple[PlanStep, ...]
@@ -104,6 +128,7 @@ class ViewPlan:
     reference: tuple[str, float, float]
     corner_sigma_px: float
     path: Path | None = None
+    groups: tuple[str, ...] = ()
 
     @property
     def waypoints(self) -> list[Waypoint]:
@@ -139,8 +164,11 @@ def simulated_cell(scenario_name: str | Path | None, corner_sigma_px: float) -> 
         T_base_board, T_flange_cam = scenario.board.transform(), scenario.mount.transform()
         default = rotation_rich_waypoints(T_base_board, T_flange_cam, distance)
     cell = SimCell(scenario, np.random.default_rng(scenario.seed))
+    board = scenario.board_definition()
+    arm = scenario.errors.arm.enabled
+    groups = planning_groups(board, arm) if scenario.errors.any_enabled() else ()
     return PlanningCell(
-        scenario.board_definition(),
+        board,
         scenario.camera.intrinsics(),
         T_flange_cam,
         T_base_board,
@@ -149,6 +177,9 @@ def simulated_cell(scenario_name: str | Path | None, corner_sigma_px: float) -> 
         cell.accepts,
         (f"the default {len(default)} views", default),
         scenario.setup,
+        groups,
+        ROBOTS[scenario.robot] if arm else None,
+        cell.joints.copy(),
     )
 
 
@@ -218,7 +249,18 @@ def calibrated_cell(
         accepts,
         (f"the {len(recorded)} views of {data.root}", recorded),
         cal.setup,
+        kept_groups(cal.data),
+        kinematics,
+        IK_RESTARTS[2],
     )
+
+
+def kept_groups(result: dict) -> tuple[str, ...]:
+    """The NUISANCE_GROUPS a calibration result self-calibrated (its noise's self_calibration
+    groups_kept, in NUISANCE_GROUPS order), () without self-calibration."""
+    block = (result.get("noise") or {}).get("self_calibration") or {}
+    kept = set(block.get("groups_kept") or ())
+    return tuple(g for g in NUISANCE_GROUPS if g in kept)
 
 
 def _count_and_target(
@@ -310,21 +352,25 @@ def _plan(
     corner_sigma_px: float,
     seed: int,
 ) -> ViewPlan:
-    nominal = (cell.intrinsics, cell.T_flange_cam, cell.T_base_board, cell.noise)
     rng = np.random.default_rng(seed)
     candidates = candidate_views(
         cell.T_base_board, cell.T_flange_cam, cell.distance_m, candidate_count, rng, setup=cell.setup
     )
-    usable, informations = view_informations(candidates, cell.board, *nominal, setup=cell.setup)
-    steps = plan_views(informations, count, criterion, target, lambda k: cell.accepts(candidates[usable[k]]))
+    usable, informations, prior = cell.informations(candidates)
+    steps = plan_views(
+        informations, count, criterion, target, lambda k: cell.accepts(candidates[usable[k]]), prior=prior
+    )
     if not steps:
         raise PlanError(
             f"none of the {len(usable)} candidates with the whole board in view passes the cell's checks "
             "(reach, joint limits, workspace, collisions)"
         )
     name, reference = cell.reference
-    _, reference_informations = view_informations(reference, cell.board, *nominal, setup=cell.setup)
-    reference_mm, reference_deg = predicted_sigmas(reference_informations.sum(axis=0))
+    _, reference_informations, _ = cell.informations(reference)
+    reference_total = reference_informations.sum(axis=0) + (0.0 if prior is None else prior)
+    reference_mm, reference_deg = (
+        predicted_sigmas(reference_total) if len(reference_informations) else (np.inf, np.inf)
+    )
     planned = []
     for k, step in enumerate(steps):
         view = candidates[usable[step.candidate]]
@@ -351,4 +397,5 @@ def _plan(
         reached,
         (name, reference_mm, reference_deg),
         corner_sigma_px,
+        groups=cell.groups,
     )

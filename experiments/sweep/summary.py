@@ -262,20 +262,25 @@ def convergence(
     problem: CalibrationProblem, T_flange_cam_true: np.ndarray, options: MethodOptions, iterated: bool = False
 ) -> Convergence:
     """Run ekf (or iekf) over the problem's frames, as run_method would (with the learned noise when
-    options.learn_noise), and keep each update's error and 1-sigma."""
+    options.learn_noise, its levels' uncertainty added to every update), and keep each update's
+    error and 1-sigma."""
     from hec.estimator.solve.filters import filter_steps
     from hec.estimator.solve.methods import learned_setup
     from hec.estimator.solve.noise_learning import learn_noise
 
+    widening = np.zeros((6, 6))
     if options.learn_noise:
         name = "iekf" if iterated else "ekf"
-        _, problem, options = learned_setup(name, problem, options, learn_noise(problem, options))
+        learned = learn_noise(problem, options)
+        _, problem, options = learned_setup(name, problem, options, learned)
+        # The levels' own uncertainty, as run_method adds it (hec.estimator.solve.level_uncertainty).
+        widening = learned.level_widening if learned.level_widening is not None else widening
     position = {f.frame: i + 1 for i, f in enumerate(problem.frames)}
     waypoints, errors, sigmas = [], [], []
     for step in filter_steps(problem, options, iterated):
         waypoints.append(position[step.frame] if step.frame >= 0 else len(problem.frames) + 1)
         errors.append(pose_minus(step.state.T_flange_cam, T_flange_cam_true))
-        sigmas.append(np.sqrt(np.diag(step.covariance)[:6]))
+        sigmas.append(np.sqrt(np.diag(step.covariance)[:6] + np.diag(widening)))
     return Convergence("iekf" if iterated else "ekf", np.array(waypoints), np.array(errors), np.array(sigmas))
 
 
