@@ -71,3 +71,26 @@ def test_two_needed_groups_trading_one_for_the_other_are_neither_advice() -> Non
     assert checks["board_scale"].significant and checks["depth_bias"].significant
     assert not checks["board_scale"].holds and not checks["depth_bias"].holds
     assert "(their estimates are 95% correlated)" in checks["board_scale"].cannot_tell()
+
+
+def test_a_finding_beside_a_needed_group_with_no_material_correction_is_advice() -> None:
+    """The depth's scale is needed (4 sigma) but immaterial (0.04 %, below the 0.1 % worth
+    reporting) and 95 % correlated with a print scale 40 sigma off: it is no rival, and the print
+    scale's marginal sigma (which carries the trade) says how well it is known."""
+    checks = check_findings(
+        _problem(), _learned([0.004, 0.0, 0.0004, 0.0], [0.0001, 0.0001, 0.0001, 0.001], 0.95)
+    )
+    assert not checks["depth_bias"].significant
+    assert checks["board_scale"].significant and checks["board_scale"].holds, checks
+
+
+def test_a_correction_that_only_just_reaches_a_noteworthy_size_is_no_finding() -> None:
+    """A print scale 0.12 % +- 0.03 % off: 4 sigma, beyond the 0.1 % worth reporting, but not with
+    one sigma taken off; 0.14 % +- 0.03 % is."""
+    sigma = [0.0003, 0.0003, 0.002, 0.001]
+    assert not check_findings(_problem(), _learned([0.0012, 0.0, 0.0, 0.0], sigma, 0.0))[
+        "board_scale"
+    ].significant
+    assert check_findings(_problem(), _learned([0.0014, 0.0, 0.0, 0.0], sigma, 0.0))[
+        "board_scale"
+    ].significant

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hec.calibration.report import format_calibration
 from hec.estimator.geometry.lie import pose_minus
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.methods import solve
@@ -57,3 +58,19 @@ def test_an_arm_beyond_its_prior_is_reported_with_an_honest_uncertainty() -> Non
         scales.append(kinematic[0])
     assert min(scales) > 1.2, scales
     assert 3.0 < np.mean(nees) < 10.0, nees
+
+
+def test_the_text_report_prints_the_learned_prior_widths() -> None:
+    """The verbose report gives each self-calibrated group's learned prior width, as the JSON's
+    self_calibration.prior_scale has it."""
+    observations, arm, _ = arm_scene(np.random.default_rng(3000), 2.5)
+    problem = build_problem(observations, BOARD, INTRINSICS, ROBOT, arm=arm)
+    learned = learn_noise(problem, MethodOptions())
+    result = solve("ekf", problem, MethodOptions(), observations, learned)
+    line = next(
+        (s for s in format_calibration(result).splitlines() if s.startswith("self-calibration: the priors'")),
+        None,
+    )
+    assert line is not None
+    scale = learned.to_dict()["self_calibration"]["prior_scale"]
+    assert f"kinematics {scale[KINEMATIC_NUISANCE[0]]:.2f}x" in line, line

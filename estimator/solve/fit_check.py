@@ -59,7 +59,9 @@ SELF_CALIBRATED = " (self-calibration; the mount's covariance includes their unc
 @dataclass
 class FitCheck:
     """chi2_dof: per group at the declared noise (1 when the model fits), 'all measurements' for
-    pixels and depth together. patterns: named figures (radial growth, board scale, depth trend).
+    pixels and depth together. patterns: named figures (radial growth, board scale, depth trend;
+    advice_<group> 1 for each self-calibration group given as advice, finding_holds_<group> for each
+    significant one).
     warnings: plain words, the likely cause first."""
 
     chi2_dof: dict[str, float]
@@ -240,7 +242,8 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
     """What the self-calibration found: each group whose finding holds (significant, stable under
     the model's alternatives, weakly correlated: hec.estimator.solve.finding_check) with its likely
     cause and remedy (the arm's: the flange poses its corrected kinematics move, when that is
-    NOTEWORTHY), then a "cannot tell apart" sentence for each significant one that does not hold."""
+    NOTEWORTHY), then a "cannot tell apart" sentence for each significant one that does not hold.
+    Records advice_<group> in patterns for each group given as advice."""
     t = dict(zip(learned.theta_names, learned.theta, strict=True))
     sigma = dict(zip(learned.theta_names, learned.theta_sigma, strict=True))
     patterns.update({f"self_calibration_{name}": float(v) for name, v in t.items()})
@@ -292,10 +295,20 @@ def _self_calibration(problem: CalibrationProblem, learned: LearnedNoise, patter
             f"the lens distortion differs from the dataset's by k1 {t['k1']:+.4f}, k2 {t['k2']:+.4f}: "
             "calibrate the camera's intrinsics with distortion"
         )
+    advised = [
+        g
+        for g in ("board_scale", "board_bend", "depth_bias", "depth_tilt", "intrinsics", "distortion")
+        if found(g)
+    ]
     if KINEMATIC_NUISANCE[0] in t and found("kinematics"):
-        findings += _kinematic_finding(problem, learned, patterns)
+        arm = _kinematic_finding(problem, learned, patterns)
+        findings += arm
+        advised += ["kinematics"] if arm else []
     if found(MARKER_SHIFTS):
-        findings += _marker_shift_finding(problem, t, sigma)
+        markers = _marker_shift_finding(problem, t, sigma)
+        findings += markers
+        advised += [MARKER_SHIFTS] if markers else []
+    patterns.update({f"advice_{group}": 1.0 for group in advised})
     undecided, pairs = [], {frozenset(SCALE_PAIR)} if _scale_ambiguity(learned, {}) else set()
     for check in checks.values():
         if check.significant and not check.holds and frozenset({check.group, check.partner}) not in pairs:

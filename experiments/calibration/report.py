@@ -23,8 +23,10 @@ from hec.estimator.common.setups import (
 from hec.estimator.geometry.lie import pose_minus, so3_log
 from hec.estimator.geometry.transforms import pose_error, rpy_from_transform, xyz_quat_from_transform
 from hec.estimator.solve.calibration import Calibration
+from hec.estimator.solve.noise_learning import LearnedNoise
 from hec.estimator.solve.pick_error import PickError, pick_error, true_pick_error_mm, working_distance
 from hec.estimator.solve.problem import CalibrationProblem
+from hec.estimator.solve.self_calibration import MARKER_SHIFTS, NUISANCE_GROUPS
 
 TRANSFORM_MEANING = (
     "T_flange_cam: the camera optical frame (x right, y down, z forward) in the flange (tool0) frame; "
@@ -226,6 +228,23 @@ def _format_noise(cal: Calibration) -> list[str]:
         f"goodness of fit: chi-square per degree of freedom at the declared noise {noise.chi2_dof:.2f} "
         f"(1 = the model fits; {fit})",
         *([] if noise.depth is None else [noise.depth.describe()]),
+        *_format_prior_scale(noise),
+    ]
+
+
+def _format_prior_scale(noise: LearnedNoise) -> list[str]:
+    """The self-calibration's groups and the widths of their priors learned from the corrections
+    (hec.estimator.solve.prior_scale: x the declared prior's sigma, the same within a group)."""
+    if noise.theta is None or noise.theta_prior_scale is None:
+        return []
+    group_of = {name: g for g in NUISANCE_GROUPS for name in NUISANCE_GROUPS[g]}
+    scale = {
+        group_of.get(name, MARKER_SHIFTS): float(s)
+        for name, s in zip(noise.theta_names, noise.theta_prior_scale, strict=True)
+    }
+    widths = ", ".join(f"{group.replace('_', ' ')} {s:.2f}x" for group, s in scale.items())
+    return [
+        f"self-calibration: the priors' widths learned from the corrections (x the declared sigma): {widths}"
     ]
 
 
