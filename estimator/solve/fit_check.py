@@ -31,7 +31,9 @@ from hec.estimator.solve.self_calibration import (
     MARKER_SHIFTS,
     NOTEWORTHY_MARKER_SHIFT_M,
     PRIOR_SIGMA,
+    SCALE_CORRELATION,
     adjusted_problem,
+    print_depth_scale_correlation,
 )
 from hec.estimator.solve.setup_roles import flange_minus
 
@@ -42,8 +44,6 @@ MAX_REJECTED_FRACTION = 0.10
 PRIOR_CONFLICT_PROBABILITY = 1e-3
 # A residual pattern is reported when it explains at least this share of the residual's variance.
 PATTERN_SHARE = 0.3
-# The print scale and the depth scale are "not told apart" above this correlation of their estimates.
-SCALE_CORRELATION = 0.9
 # ... and the depth scale is "left to the priors" when its sigma exceeds this fraction of its
 # prior's: 0.7 on an orbit of the default angles, 0.03-0.1 on the default two-distance views.
 SCALE_UNRESOLVED = 0.25
@@ -403,15 +403,12 @@ def _scale_ambiguity(learned: LearnedNoise, patterns: dict) -> list[str]:
     their estimates correlated beyond SCALE_CORRELATION and the depth scale's sigma more than
     SCALE_UNRESOLVED of its prior's (the split between the two then rests on their priors, and
     the mount's covariance carries it)."""
-    names = list(learned.theta_names)
-    if not {"board_scale_x", "board_scale_y", "depth_scale"} <= set(names):
+    correlation = print_depth_scale_correlation(learned.theta_names, learned.theta_covariance)
+    if correlation is None:
         return []
-    C = learned.theta_covariance
-    board = np.zeros(len(names))
-    board[[names.index("board_scale_x"), names.index("board_scale_y")]] = 0.5
+    C, names = learned.theta_covariance, list(learned.theta_names)
     depth = np.zeros(len(names))
     depth[names.index("depth_scale")] = 1.0
-    correlation = float(board @ C @ depth / np.sqrt((board @ C @ board) * (depth @ C @ depth)))
     patterns["print_depth_scale_correlation"] = correlation
     resolved = np.sqrt(depth @ C @ depth) / PRIOR_SIGMA["depth_scale"]
     patterns["depth_scale_sigma_over_prior"] = float(resolved)

@@ -57,6 +57,7 @@ from hec.estimator.solve.self_calibration import (
     group_members,
     group_names,
     noteworthy_sizes,
+    scales_confounded,
 )
 from hec.estimator.solve.stacked_prediction import StackedFrames
 
@@ -288,10 +289,15 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     declared_ratios, chi2_dof = _declared_fit(first.levels, declared, robot, first.factors)
     final, kept, tried, uncertainty = first, (), (), None
     ratios_after, chi2_dof_after = None, None
-    camera_misfit, arm_misfit = _misfits(problem, first, declared_ratios, robot)
-    if camera_misfit:
-        tried = available_groups(problem, arm_misfit=False)
+    corners_misfit, depths_misfit, flange_misfit = _misfits(problem, first, declared_ratios, robot)
+    arm_misfit = problem.kinematics is not None and flange_misfit
+    if corners_misfit or depths_misfit:
+        depth_only = not (corners_misfit or flange_misfit)
+        tried = available_groups(problem, arm_misfit=False, depth_only=depth_only)
         final, kept, uncertainty = _self_calibrate(problem, options, start, P0, first, tried)
+        if depth_only and "board_scale" in kept and not scales_confounded(problem, kept, uncertainty.theta):
+            tried = tuple(g for g in tried if g != "board_scale")
+            final, kept, uncertainty = _self_calibrate(problem, options, start, P0, first, tried)
         # The camera's errors (a depth bias above all) push the flange poses too: the arm misfits
         # only if its poses still do with the camera, board and depth calibrated.
         arm_misfit = arm_misfit and _arm_misfits_still(problem, final, declared, robot)
@@ -312,9 +318,7 @@ def _learn_noise(problem: CalibrationProblem, options: MethodOptions) -> Learned
     else:
         mount_covariance = uncertainty.mount
     widening = _level_widening(problem, options, final, names, start, P0)
-    prior_distance = None
-    if options.prior is not None:
-        prior_distance = _prior_distance(objective, params, options)
+    prior_distance = None if options.prior is None else _prior_distance(objective, params, options)
     return LearnedNoise(
         declared,
         final.levels,
@@ -359,15 +363,12 @@ def _level_widening(
 
 def _misfits(
     problem: CalibrationProblem, first: _Pass, ratios: dict[str, float], robot: RobotPoseNoise
-) -> tuple[bool, bool]:
-    """Whether the declared model fits worse than MISFIT_SCALE times its noise: the corners or the
-    depths; the flange poses, when the problem knows the arm's kinematics (self-calibration can
-    correct them), and then only where their chi-square at the level learning started from
-    (ratios, _declared_fit's; robot) is beyond ARM_MISFIT_PROBABILITY (a handful of views has few
-    flange residuals)."""
+) -> tuple[bool, bool, bool]:
+    """Whether the corners, the depths and the flange poses fit worse than MISFIT_SCALE times their
+    noise, the flange poses only where their chi-square at the level learning started from (ratios,
+    _declared_fit's; robot) is beyond ARM_MISFIT_PROBABILITY (few views have few flange residuals)."""
     levels = first.levels
-    camera = max(levels.pixel_scale, levels.depth_scale) > MISFIT_SCALE
-    arm = False
+    flange = False
     for name, start in (
         ("robot_translation", robot.translation_sigma_m),
         ("robot_rotation", robot.rotation_sigma_rad),
@@ -375,16 +376,16 @@ def _misfits(
         if name in ratios:
             redundancy = first.factors[name][1]
             unlikely = chi2.sf(ratios[name] * redundancy, redundancy) < ARM_MISFIT_PROBABILITY
-            arm |= _sigma(levels, name) > MISFIT_SCALE * start and unlikely
-    return camera, problem.kinematics is not None and arm
+            flange |= _sigma(levels, name) > MISFIT_SCALE * start and unlikely
+    return levels.pixel_scale > MISFIT_SCALE, levels.depth_scale > MISFIT_SCALE, flange
 
 
 def _arm_misfits_still(
     problem: CalibrationProblem, calibrated: _Pass, declared: NoiseLevels, robot: RobotPoseNoise
 ) -> bool:
-    """_misfits' verdict on the flange poses at a pass with the camera self-calibrated."""
+    """_misfits' verdict on the flange poses (of a known arm) at a pass with the camera calibrated."""
     ratios, _ = _declared_fit(calibrated.levels, declared, robot, calibrated.factors)
-    return _misfits(problem, calibrated, ratios, robot)[1]
+    return problem.kinematics is not None and _misfits(problem, calibrated, ratios, robot)[2]
 
 
 def _self_calibrate(

@@ -86,6 +86,18 @@ NUISANCE_GROUPS = {
     "kinematics": KINEMATIC_NUISANCE,
     MARKER_SHIFTS: (),  # the problem's markers: group_members
 }
+# The groups freed when only the depths misfit (the corners and the flange poses fit their noise):
+# the depth's own, and the print scale, which from one distance looks like a depth scale to the
+# corners and the flange poses alike. The camera's other errors show in the corners or, through
+# the board pose, in the flange poses; freed without that, they took up depth errors the model
+# cannot describe (a rendered cell with the depth alone 2x off, 29 trials: median 0.156 mm with
+# every group freed, 0.135 mm with the depth's alone, OpenCV's best 0.136 mm).
+DEPTH_GROUPS = ("board_scale", "depth_bias", "depth_tilt")
+# The print scale and the depth scale are "not told apart" above this correlation of their
+# estimates (print_depth_scale_correlation). Below it, with only the depths misfitting, the print
+# scale is fixed: the depths alone would decide it, and on an exact print their errors the model
+# cannot describe made it significant in 5 of those 29 trials (0.24-0.41 mm off).
+SCALE_CORRELATION = 0.9
 # Prior sigmas: focal lengths as a fraction of the declared one, the rest as they are. The arm's:
 # UR calibration files show zero offsets of 0.006-0.07 deg, a and d deltas of 0.02-0.9 mm and
 # twist deltas of 0.02-0.4 deg against the nominal table.
@@ -150,14 +162,43 @@ MSE_SHIFT = 4.0
 _KINEMATIC_STEP = 1e-7
 
 
-def available_groups(problem: CalibrationProblem, arm_misfit: bool) -> tuple[str, ...]:
+def available_groups(
+    problem: CalibrationProblem, arm_misfit: bool, depth_only: bool = False
+) -> tuple[str, ...]:
     """The NUISANCE_GROUPS to free: the arm's kinematics only when the problem knows them and the
     flange poses fit worse than their noise (arm_misfit; freed for a misfit of the pixels alone,
     the 24 corrections moved a 5-view mount by 0.8 mm on an exact arm); the marker shifts only on
-    a board whose markers are placed one by one (Target.markers_placed_one_by_one)."""
+    a board whose markers are placed one by one (Target.markers_placed_one_by_one); with
+    depth_only (the depths misfit, the corners and flange poses do not) DEPTH_GROUPS alone."""
     arm = problem.kinematics is not None and arm_misfit
     placed = problem.board.markers_placed_one_by_one
-    return tuple(g for g in NUISANCE_GROUPS if (g != "kinematics" or arm) and (g != MARKER_SHIFTS or placed))
+    groups = tuple(
+        g for g in NUISANCE_GROUPS if (g != "kinematics" or arm) and (g != MARKER_SHIFTS or placed)
+    )
+    return tuple(g for g in groups if g in DEPTH_GROUPS) if depth_only else groups
+
+
+def print_depth_scale_correlation(names: Sequence[str], theta_covariance: np.ndarray) -> float | None:
+    """The correlation of the print scale (the mean of its x and y) with the depth scale in
+    theta_covariance (len(names), len(names)); None unless both are among names."""
+    names = list(names)
+    if not {"board_scale_x", "board_scale_y", "depth_scale"} <= set(names):
+        return None
+    board = np.zeros(len(names))
+    board[[names.index("board_scale_x"), names.index("board_scale_y")]] = 0.5
+    depth = np.zeros(len(names))
+    depth[names.index("depth_scale")] = 1.0
+    C = theta_covariance
+    return float(board @ C @ depth / np.sqrt((board @ C @ board) * (depth @ C @ depth)))
+
+
+def scales_confounded(
+    problem: CalibrationProblem, groups: Sequence[str], theta_covariance: np.ndarray
+) -> bool:
+    """Whether the views cannot tell the print scale from the depth's scale: their estimates in
+    theta_covariance (over group_names(problem, groups)) correlated beyond SCALE_CORRELATION."""
+    correlation = print_depth_scale_correlation(group_names(problem, groups), theta_covariance)
+    return correlation is not None and abs(correlation) >= SCALE_CORRELATION
 
 
 def group_members(problem: CalibrationProblem, group: str) -> tuple[str, ...]:
