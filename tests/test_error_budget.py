@@ -98,6 +98,15 @@ def test_budget_sweep_runs_and_reports(tmp_path: Path, monkeypatch: pytest.Monke
         assert float(cells[3].split(" / ")[0]) == pytest.approx(park_median_mm(source), abs=1e-3)
         assert cells[4].startswith("park ") and cells[5].endswith("x") and cells[6] == "- |"  # unpaired
 
+    # A page of a sweep still running (or stopped) says what it lacks.
+    lines = (out / "rows.csv").read_text().splitlines(keepends=True)
+    (out / "rows.csv").write_text("".join(lines[:-2]))  # the last trial's two method rows
+    code, _, stderr = run_hec(["report", str(out), "--page", str(tmp_path / "partial.md")])
+    assert code == 0 and "unfinished sweep: 1 of 6 trials missing" in stderr, stderr
+    partial = (tmp_path / "partial.md").read_text()
+    assert "**Not every trial is in these tables**: unfinished sweep: 1 of 6 trials missing" in partial
+    assert "**Not every trial" not in page
+
 
 def test_budget_table_gives_median_p95_and_mean_nees() -> None:
     rng = np.random.default_rng(3)

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         from hec.sweep.page import write_sweep_page
 
         try:
-            print(f"page: {write_sweep_page(args.dir, report.summaries, args.page)}")
+            print(f"page: {write_sweep_page(args.dir, report.summaries, args.page, report.missing)}")
         except OSError as exc:
             print(f"hec: error: {args.page}: cannot write the page ({exc.strerror})", file=sys.stderr)
             return 2

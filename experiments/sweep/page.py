@@ -130,8 +130,11 @@ def warning_rows(rows: Sequence[dict], method: str, nees_limit: float) -> list[l
     return out
 
 
-def write_sweep_page(out_dir: Path, summaries: Sequence[CellSummary], page: Path) -> Path:
-    """Write the sweep in out_dir (its sweep.json names the configuration) as a results page."""
+def write_sweep_page(
+    out_dir: Path, summaries: Sequence[CellSummary], page: Path, missing: str | None = None
+) -> Path:
+    """Write the sweep in out_dir (its sweep.json names the configuration) as a results page;
+    missing: what an unfinished sweep lacks (hec.sweep.report.missing_trials), said at the top."""
     record = json.loads((Path(out_dir) / "sweep.json").read_text())
     name = Path(str(record.get("config_file", "the sweep file"))).name
     paired = bool(record.get("config", {}).get("paired"))
@@ -140,6 +143,8 @@ def write_sweep_page(out_dir: Path, summaries: Sequence[CellSummary], page: Path
         " the successful trials; RMS / CRB is the RMS error over the Cramer-Rao bound's RMS on the same"
         " trials; the mean NEES is about 6 when the reported uncertainty is honest."
     ]
+    if missing is not None:
+        body.append(f"**Not every trial is in these tables**: {missing}.")
     if has_budget(list(summaries)):
         header = [
             "error source",
