@@ -282,6 +282,7 @@ def main(argv: list[str] | None = None) -> int:
             f"python -m hec.bench.findings --trials {args.trials} --seed {args.seed}"
             + (f" --cells {args.cells}" if args.cells else "")
             + (f" --views {args.views}" if args.views else "")
+            + f" --page {args.page}"
         )
         body = [
             "The realistic cell (`models/scenarios/realistic.toml`) with one error source at a time at its "
