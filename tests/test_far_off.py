@@ -53,7 +53,15 @@ def test_error_scale_multiplies_every_systematic_error_and_nothing_else() -> Non
 def test_the_far_off_sweep_has_its_cells_and_rejects_a_negative_scale(tmp_path) -> None:
     config = load_config(models_dir() / "sweeps" / "far_off.toml")
     cells = [(c.parameters["error_sources"], c.parameters["error_scale"]) for c in config.cells]
-    assert cells == [("none", 1.0), ("all", 1.0), ("all", 2.0), ("all", 3.0), ("arm", 2.0), ("depth", 2.0)]
+    assert cells == [
+        ("none", 1.0),
+        ("all", 1.0),
+        ("all", 2.0),
+        ("all", 3.0),
+        ("arm", 2.0),
+        ("depth", 2.0),
+        ("depth", 1.0),
+    ]
     assert config.paired and config.trials >= 30 and {"ekf", "seed-ekf", "opencv-park"} <= set(config.methods)
     path = tmp_path / "bad.toml"
     path.write_text('fidelity = "render"\n[fixed]\nerror_scale = -1.0\n')
