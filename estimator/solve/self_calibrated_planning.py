@@ -28,7 +28,7 @@ from hec.estimator.common.setups import EYE_IN_HAND
 from hec.estimator.geometry.camera import CameraIntrinsics
 from hec.estimator.geometry.kinematics import IK_RESTARTS, URKinematics, solve_ik_nearest
 from hec.estimator.geometry.waypoints import Waypoint
-from hec.estimator.observe.synthetic import SyntheticNoise, synthetic_observations
+from hec.estimator.observe.synthetic import SyntheticNoise
 from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
 from hec.estimator.solve.problem import CalibrationProblem, build_problem
 from hec.estimator.solve.self_calibration import (
@@ -40,7 +40,7 @@ from hec.estimator.solve.self_calibration import (
     kinematic_jacobian,
     prior_sigma,
 )
-from hec.estimator.solve.view_planning import VIEW_MARGIN_PX
+from hec.estimator.solve.view_planning import whole_board_views
 from hec.estimator.targets.target import Target
 
 STATE_DIM = 12  # mount, board pose
@@ -131,19 +131,9 @@ def self_calibrated_informations(
     if arm and kinematics is None:
         raise ValueError("planning for the arm's kinematics needs the arm's nominal kinematics")
     flanges = [w.T_base_flange for w in waypoints]
-    observations = synthetic_observations(
-        board,
-        intrinsics,
-        T_flange_cam,
-        T_base_board,
-        flanges,
-        noise,
-        None,
-        exact=True,
-        margin_px=VIEW_MARGIN_PX,
-        setup=setup,
+    observations, whole = whole_board_views(
+        waypoints, board, intrinsics, T_flange_cam, T_base_board, noise, setup
     )
-    whole = [i for i, o in enumerate(observations) if len(o.markers) == len(board.marker_ids)]
     jacobians: list[np.ndarray | None] = [None] * len(whole)
     if arm:
         seed = IK_RESTARTS[0] if seed_joints is None else np.asarray(seed_joints, float)

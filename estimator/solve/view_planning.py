@@ -113,6 +113,32 @@ def reachable(
     return solve_ik_nearest(kinematics, waypoint.T_base_flange, seed_joints)
 
 
+def whole_board_views(
+    waypoints: Sequence[Waypoint],
+    board: Target,
+    intrinsics: CameraIntrinsics,
+    T_flange_cam: np.ndarray,
+    T_base_board: np.ndarray,
+    noise: SyntheticNoise,
+    setup: str = EYE_IN_HAND,
+) -> tuple[list, list[int]]:
+    """Exact synthetic observations of every waypoint (at the nominal T_flange_cam, T_base_board,
+    (4, 4), metres) and the indices of those holding every marker VIEW_MARGIN_PX inside the image."""
+    observations = synthetic_observations(
+        board,
+        intrinsics,
+        T_flange_cam,
+        T_base_board,
+        [w.T_base_flange for w in waypoints],
+        noise,
+        None,
+        exact=True,
+        margin_px=VIEW_MARGIN_PX,
+        setup=setup,
+    )
+    return observations, [i for i, o in enumerate(observations) if len(o.markers) == len(board.marker_ids)]
+
+
 def view_informations(
     waypoints: Sequence[Waypoint],
     board: Target,
@@ -126,20 +152,9 @@ def view_informations(
     """The waypoints whose views hold every marker VIEW_MARGIN_PX inside the image (their indices
     into waypoints) and the (n, 12, 12) information each adds to the state (mount, board pose;
     hec.estimator.geometry.lie perturbations), from an exact frame with noise's covariances."""
-    flanges = [w.T_base_flange for w in waypoints]
-    observations = synthetic_observations(
-        board,
-        intrinsics,
-        T_flange_cam,
-        T_base_board,
-        flanges,
-        noise,
-        None,
-        exact=True,
-        margin_px=VIEW_MARGIN_PX,
-        setup=setup,
+    observations, whole = whole_board_views(
+        waypoints, board, intrinsics, T_flange_cam, T_base_board, noise, setup
     )
-    whole = [i for i, o in enumerate(observations) if len(o.markers) == len(board.marker_ids)]
     if not whole:
         return [], np.zeros((0, 12, 12))
     chosen = [observations[i] for i in whole]

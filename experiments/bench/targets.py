@@ -37,7 +37,7 @@ from hec.estimator.io.tomlfile import read_toml
 from hec.estimator.observe.grading import grade_observations
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.methods import solve
-from hec.estimator.solve.problem import build_problem, dataset_arm, dataset_robot_noise
+from hec.estimator.solve.problem import dataset_problem
 from hec.estimator.targets.qr import DetectorSettings
 from hec.sim.scenario import Scenario, ScenarioError, resolve_scenario_path, scenario_from_dict
 from hec.sim.simulate import simulate_in_memory
@@ -75,13 +75,7 @@ def board_trial(board: str, seed: int, scenario: str | None = None) -> dict:
     truth = dataset.ground_truth
     result = grade_observations(observations, truth, dataset.board, dataset.intrinsics).summary()
     result |= {"ms_per_frame": ms_per_frame, "frames": len(dataset), "corner_noise": corner_noise}
-    problem = build_problem(
-        observations,
-        dataset.board,
-        dataset.intrinsics,
-        dataset_robot_noise(dataset),
-        arm=dataset_arm(dataset),
-    )
+    problem = dataset_problem(dataset, observations)
     for method in METHODS:
         try:
             calibration = solve(method, problem, MethodOptions(), observations)

@@ -63,9 +63,8 @@ from hec.estimator.solve.method_names import DEFAULT_METHOD  # noqa: E402
 from hec.estimator.solve.methods import run_method  # noqa: E402
 from hec.estimator.solve.problem import (  # noqa: E402
     CalibrationInputError,
-    build_problem,
     dataset_arm,
-    dataset_robot_noise,
+    dataset_problem,
 )
 from hec.estimator.solve.self_calibrated_planning import planning_groups, self_calibrated_informations  # noqa: E402
 from hec.estimator.solve.view_planning import candidate_views, plan_views, view_informations  # noqa: E402
@@ -142,13 +141,7 @@ def calibrate_views(dataset: object, observations: list) -> dict:
     """The default method on the observations: its error against the truth (mm, deg) and NEES, the
     floor (the reachable mount's distance from the truth, mm) and its error against that (mm)."""
     truth = dataset.ground_truth.T_flange_cam
-    problem = build_problem(
-        observations,
-        dataset.board,
-        dataset.intrinsics,
-        dataset_robot_noise(dataset),
-        arm=dataset_arm(dataset),
-    )
+    problem = dataset_problem(dataset, observations)
     result = run_method(DEFAULT_METHOD, problem, MethodOptions(), observations)
     reachable = reachable_mount(dataset)
     error_m, error_rad = pose_error(result.T_flange_cam, truth)
