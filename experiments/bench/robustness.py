@@ -44,11 +44,9 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import contextlib  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
 from dataclasses import dataclass, replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -73,6 +71,7 @@ from hec.estimator.solve.observability import observability  # noqa: E402
 from hec.estimator.solve.problem import CalibrationInputError, build_problem  # noqa: E402
 from hec.estimator.targets.board import BoardDefinition  # noqa: E402
 from hec.sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.support.parallel import results_as_done  # noqa: E402
 from hec.support.results_page import write_results_page  # noqa: E402
 from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount, scene  # noqa: E402
 from hec.sweep.parameters import MEASUREMENTS, RENDER  # noqa: E402
@@ -308,14 +307,10 @@ def run_cases(cases: list[Case], trials: int, seed: int, workers: int, progress:
     """Summaries keyed by Case.key, every trial of every case; workers <= 1 runs here, in order."""
     jobs = [(CASES.index(c), seed, t) for c in cases for t in range(trials)]
     results: dict[str, list[dict]] = {c.key: [] for c in cases}
-    with ProcessPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
-        if pool is None:
-            done = (run_trial(*job) for job in jobs)
-        else:
-            done = (f.result() for f in as_completed([pool.submit(run_trial, *job) for job in jobs]))
-        label = cases[0].fidelity if cases else ""
-        for out in tqdm(done, total=len(jobs), unit="trial", disable=not progress, desc=label):
-            results[out["case"]].append(out)
+    label = cases[0].fidelity if cases else ""
+    done = results_as_done(run_trial, jobs, workers)
+    for out in tqdm(done, total=len(jobs), unit="trial", disable=not progress, desc=label):
+        results[out["case"]].append(out)
     for trials_of_case in results.values():
         trials_of_case.sort(key=lambda t: t["trial"])
     return {key: summarise(t) for key, t in results.items()}

@@ -54,7 +54,6 @@ import io  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -101,6 +100,7 @@ from hec.estimator.targets.target import Target  # noqa: E402
 from hec.sim.cell import SimCell  # noqa: E402
 from hec.sim.noise import depth_noise_model, robot_pose_noise_model  # noqa: E402
 from hec.sim.scenario import Scenario, load_scenario, scenario_from_dict  # noqa: E402
+from hec.support.parallel import results_as_done  # noqa: E402
 from hec.support.results_page import write_results_page  # noqa: E402
 from hec.support.synthetic_scenes import BOARD, INTRINSICS, SCENARIO, T_BASE_BOARD, random_mount  # noqa: E402
 from hec.sweep.rows import SweepError  # noqa: E402
@@ -350,12 +350,8 @@ def main(argv: list[str] | None = None) -> int:
         for p in range(args.placements)
     ]
     start = time.perf_counter()
-    with ProcessPoolExecutor(args.workers) if args.workers > 1 else contextlib.nullcontext() as pool:
-        if pool is None:
-            done = (run_placement(*job) for job in jobs)
-        else:
-            done = (f.result() for f in as_completed([pool.submit(run_placement, *job) for job in jobs]))
-        placements = sorted(tqdm(done, total=len(jobs), unit="placement"), key=lambda p: p["placement"])
+    done = results_as_done(run_placement, jobs, args.workers)
+    placements = sorted(tqdm(done, total=len(jobs), unit="placement"), key=lambda p: p["placement"])
     elapsed = time.perf_counter() - start
     timing = time_planning(args.seed, args.candidates, args.corner_sigma_px)
     summary = summarise(placements)

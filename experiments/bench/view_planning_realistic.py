@@ -43,7 +43,6 @@ import io  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -70,6 +69,7 @@ from hec.estimator.solve.self_calibrated_planning import planning_groups, self_c
 from hec.estimator.solve.view_planning import candidate_views, plan_views, view_informations  # noqa: E402
 from hec.sim.cell import SimCell  # noqa: E402
 from hec.sim.noise import depth_noise_model, robot_pose_noise_model  # noqa: E402
+from hec.support.parallel import results_as_done  # noqa: E402
 from hec.support.results_page import write_results_page  # noqa: E402
 from hec.sweep.rows import SweepError  # noqa: E402
 
@@ -276,12 +276,8 @@ def main(argv: list[str] | None = None) -> int:
         check_json_path(args.json)
     jobs = [(args.seed, p, args.candidates, args.corner_sigma_px) for p in range(args.placements)]
     start = time.perf_counter()
-    with ProcessPoolExecutor(args.workers) if args.workers > 1 else contextlib.nullcontext() as pool:
-        if pool is None:
-            done = (run_placement(*job) for job in jobs)
-        else:
-            done = (f.result() for f in as_completed([pool.submit(run_placement, *job) for job in jobs]))
-        placements = sorted(tqdm(done, total=len(jobs), unit="placement"), key=lambda p: p["placement"])
+    done = results_as_done(run_placement, jobs, args.workers)
+    placements = sorted(tqdm(done, total=len(jobs), unit="placement"), key=lambda p: p["placement"])
     elapsed = time.perf_counter() - start
     summary = summarise([p for p in placements if "failed" not in p]) | {
         "failed": sum("failed" in p for p in placements)
