@@ -385,15 +385,15 @@ class PosePairModel:
             return
         result.diagnostics["learned_pose_sigma"] = levels
         result.diagnostics["level_widening"] = widening
-        if np.all(levels <= 1.001 * VCE_FLOOR * START_SIGMAS):
+        # A component at its floor has no scatter beyond what the arm's declared noise explains.
+        floored = levels <= 1.001 * VCE_FLOOR * START_SIGMAS
+        if floored.all():
             result.warnings.append(
                 "the pairs give no covariance for the board pose and fit each other exactly (residuals at "
                 "numerical precision): there is no noise to learn and the uncertainty is that of exact "
                 "pairs; real poses are never exact (were these simulated without noise?)"
             )
             return
-        # A component at its floor has no scatter beyond what the arm's declared noise explains.
-        floored = levels <= 1.001 * VCE_FLOOR * START_SIGMAS
         shown = np.r_[1e3 * levels[:3], np.degrees(levels[3:])]
         texts = [
             "none" if low else f"{v:.{3 if k < 3 else 4}f}"
