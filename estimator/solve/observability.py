@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hec.estimator.common.noise import RobotPoseNoise
 from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
 from hec.estimator.solve.problem import CalibrationProblem, FrameMeasurements
 
@@ -56,13 +57,20 @@ def frame_information(
     """(dim, dim) Fisher information of the state perturbation from one frame, its flange pose
     error marginalised."""
     pred = predict_frame(problem, state, frame)
-    Js = pred.J_state
-    if problem.robot_noise.is_zero:
-        return Js.T @ Js
-    # Js^T (I + Jf Sigma Jf^T)^-1 Js through the push-through identity: a 6x6 solve, not rows x rows.
-    Jf, Sigma = pred.J_flange, problem.robot_noise.covariance()
-    B = Js.T @ Jf
-    return Js.T @ Js - B @ np.linalg.solve(np.eye(6) + Sigma @ (Jf.T @ Jf), Sigma @ B.T)
+    return flange_marginalised_information(pred.J_state, pred.J_flange, problem.robot_noise)
+
+
+def flange_marginalised_information(
+    J: np.ndarray, J_flange: np.ndarray, robot_noise: RobotPoseNoise
+) -> np.ndarray:
+    """(d, d) the information J^T (I + J_flange Sigma J_flange^T)^-1 J of one frame's whitened
+    Jacobian J (m, d), its flange pose error (J_flange (m, 6), Sigma robot_noise's covariance)
+    marginalised, through the push-through identity: a 6x6 solve, not m x m."""
+    if robot_noise.is_zero:
+        return J.T @ J
+    Sigma = robot_noise.covariance()
+    B = J.T @ J_flange
+    return J.T @ J - B @ np.linalg.solve(np.eye(6) + Sigma @ (J_flange.T @ J_flange), Sigma @ B.T)
 
 
 def state_information(problem: CalibrationProblem, state: HandEyeState) -> np.ndarray:

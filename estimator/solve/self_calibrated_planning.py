@@ -30,6 +30,7 @@ from hec.estimator.geometry.kinematics import IK_RESTARTS, URKinematics, solve_i
 from hec.estimator.geometry.waypoints import Waypoint
 from hec.estimator.observe.synthetic import SyntheticNoise
 from hec.estimator.solve.measurement_model import HandEyeState, predict_frame
+from hec.estimator.solve.observability import flange_marginalised_information
 from hec.estimator.solve.problem import CalibrationProblem, build_problem
 from hec.estimator.solve.self_calibration import (
     CAMERA_NUISANCE,
@@ -98,13 +99,8 @@ def frame_full_information(
 ) -> np.ndarray:
     """(12 + p, 12 + p) Fisher information of [mount, board pose, theta (names, p)] from one frame
     of problem (frame_jacobian), its flange pose error marginalised."""
-    J, Jf = frame_jacobian(problem, state, frame_index, names, G_kinematic)
-    if problem.robot_noise.is_zero:
-        return J.T @ J
-    # J^T (I + Jf Sigma Jf^T)^-1 J through the push-through identity, as frame_information
-    Sigma = problem.robot_noise.covariance()
-    B = J.T @ Jf
-    return J.T @ J - B @ np.linalg.solve(np.eye(6) + Sigma @ (Jf.T @ Jf), Sigma @ B.T)
+    J, J_flange = frame_jacobian(problem, state, frame_index, names, G_kinematic)
+    return flange_marginalised_information(J, J_flange, problem.robot_noise)
 
 
 def self_calibrated_informations(
