@@ -128,6 +128,10 @@ def delta_size(delta: np.ndarray) -> tuple[float, float]:
     return 1e3 * float(np.linalg.norm(delta[:3])), float(np.degrees(np.linalg.norm(delta[3:])))
 
 
+# chi2(6)'s 95 % quantile: an honest pose NEES exceeds it in 5 % of the trials.
+NEES_95_LINE = 12.592
+
+
 def pose_nees(T_estimate: np.ndarray, T_true: np.ndarray, covariance: np.ndarray) -> float:
     """Squared Mahalanobis distance of the (4, 4) estimate from the truth, pose_minus(T_estimate,
     T_true), under the estimate's (6, 6) covariance: about 6 on average when it is honest. Raises

@@ -17,15 +17,13 @@ from dataclasses import replace
 import numpy as np
 
 from hec.estimator.common.noise import RobotPoseNoise
-from hec.estimator.geometry.lie import pose_minus
+from hec.estimator.geometry.lie import NEES_95_LINE, pose_minus
 from hec.estimator.observe.synthetic import SyntheticNoise
 from hec.estimator.solve.calibration import MethodOptions
 from hec.estimator.solve.method_names import DEFAULT_METHOD
 from hec.estimator.solve.methods import run_method
 from hec.estimator.solve.problem import build_problem
 from hec.support.synthetic_scenes import BOARD, INTRINSICS, random_mount, scene
-
-CHI2_6_95 = 12.592
 
 
 def nees_by_views(method: str, seeds: int, views: int, robot_factor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +66,7 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"{args.method}, {views} views, flange noise {args.robot_factor:g}x declared, "
             f"{args.seeds} seeds: mean NEES {nees.mean():.2f}, median {np.median(nees):.2f}, "
-            f"{100 * np.mean(nees > CHI2_6_95):.0f} % above {CHI2_6_95}; "
+            f"{100 * np.mean(nees > NEES_95_LINE):.0f} % above {NEES_95_LINE}; "
             f"median error {1e3 * np.median(errors):.3f} mm",
             flush=True,
         )

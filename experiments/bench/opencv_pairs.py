@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hec.estimator.common.noise import RobotPoseNoise
-from hec.estimator.geometry.lie import pose_nees
+from hec.estimator.geometry.lie import NEES_95_LINE, pose_nees
 from hec.estimator.geometry.transforms import invert, make_transform
 from hec.estimator.observe.pose_pairs import PosePair
 from hec.estimator.solve.baselines import OPENCV_METHODS
@@ -61,8 +61,6 @@ NOISY_THRESHOLDS = {
 }
 STRICTEST = (0.01, 0.05)
 EXACT_THRESHOLD = 1e-8
-# chi2(6)'s 95 % quantile: an honest NEES exceeds it in 5 % of the trials.
-CHI2_6_95 = 12.592
 # Kinds of warning, by a phrase of their text.
 WARNING_KINDS = {
     "tracking bias": "tracking poses' translations read",
@@ -184,7 +182,7 @@ def rows(records: dict[str, MethodRecord], trials: int, noisy: bool) -> list[lis
                 f"{np.median(t):.3g} / {np.percentile(t, 95):.3g}",
                 f"{np.median(rot):.3g} / {np.percentile(rot, 95):.3g}",
                 f"{r.passed}/{trials}",
-                f"{nees.mean():.2f} ({100 * np.mean(nees > CHI2_6_95):.0f} %)" if nees.size else "-",
+                f"{nees.mean():.2f} ({100 * np.mean(nees > NEES_95_LINE):.0f} %)" if nees.size else "-",
                 said + (f"; {len(r.failures)} failed" if r.failures else ""),
             ]
         )
